@@ -1,0 +1,64 @@
+"""The ``margcal`` command: one console script, one subcommand per offline job.
+
+Each subcommand lives in its own module of this package and adds itself with ``register``; the
+benchmarks live in ``ros_margcal.bench`` and run as ``margcal bench AREA [--quick]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+from collections.abc import Sequence
+
+from ..errors import MargCalError
+
+__all__ = ["main"]
+
+_COMMAND_MODULES = ("simulate", "calibrate", "replay", "validator", "diagnose")
+BENCH_AREAS = ("fitting", "coverage", "pipeline", "diagnosis")
+
+
+def _run_bench(args: argparse.Namespace) -> int:
+    module = importlib.import_module(f"ros_margcal.bench.{args.area}")
+    return int(module.main(list(args.bench_args)))
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser with every subcommand registered."""
+    from .. import __version__
+
+    parser = argparse.ArgumentParser(
+        prog="margcal",
+        description="Offline tools of ros_margcal: simulate, calibrate, replay, validators, diagnosis, benchmarks.",
+    )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    for name in _COMMAND_MODULES:
+        importlib.import_module(f"{__name__}.{name}").register(sub)
+    bench = sub.add_parser("bench", help="run a benchmark; figures are ratios against a baseline of the same run")
+    bench.add_argument("area", choices=BENCH_AREAS)
+    bench.add_argument("bench_args", nargs=argparse.REMAINDER, help="passed on, e.g. --quick")
+    bench.set_defaults(func=_run_bench)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``margcal``; returns the exit code (2 for bad input, 1 for other failures)."""
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    try:
+        return int(args.func(args))
+    except MargCalError as exc:
+        print(f"margcal {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"margcal {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,32 @@
+"""ament_python / pip set-up for ros_margcal (installs without ROS; builds with colcon on Jazzy)."""
+
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = "ros_margcal"
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    description="Online in-use calibration of magnetometers and accelerometers for ROS 2",
+    license="Apache-2.0",
+    python_requires=">=3.10",
+    packages=find_packages(exclude=["tests", "tests.*"]),
+    package_data={PACKAGE: ["py.typed", "data/*.mcap", "data/*.yaml", "data/*.json"]},
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}/msg_configs", glob("msg_configs/*.yaml") + glob("msg_configs/*.json")),
+        (f"share/{PACKAGE}/launch", glob("launch/*.launch.py")),
+    ],
+    install_requires=["setuptools", "numpy>=1.24", "scipy>=1.10", "PyYAML>=6", "rosbags>=0.10", "matplotlib>=3.6"],
+    extras_require={"test": ["pytest>=7", "hypothesis>=6"], "dev": ["ruff", "mypy"]},
+    zip_safe=True,
+    entry_points={
+        "console_scripts": [
+            "margcal = ros_margcal.cli:main",
+            "margcal_node = ros_margcal.node:main",
+        ],
+    },
+)

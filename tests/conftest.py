@@ -1,0 +1,33 @@
+"""Shared fixtures: seeded generators, a known true calibration, and the optional real recordings."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ros_margcal.calibration import Calibration
+
+REAL_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real"
+
+
+@pytest.fixture
+def rng() -> np.random.Generator:
+    """A generator with a fixed seed, fresh for every test."""
+    return np.random.default_rng(20261121)
+
+
+@pytest.fixture
+def true_cal() -> Calibration:
+    """A magnetometer-like truth: hard-iron offset, unequal gains and cross-axis terms (raw in µT)."""
+    w = np.array([[1.08, 0.04, -0.02], [0.04, 0.93, 0.03], [-0.02, 0.03, 1.01]])
+    return Calibration(np.array([12.0, -7.5, 30.0]), w, norm=48.0, model="sym", sensor="mag", unit="uT")
+
+
+@pytest.fixture
+def real_data_dir() -> Path:
+    """``../shared/data/real`` beside the checkout; the test is skipped when it is absent."""
+    if not REAL_DATA.is_dir():
+        pytest.skip(f"real recordings not present at {REAL_DATA} (they live outside the package)")
+    return REAL_DATA
