@@ -342,6 +342,9 @@ def save_calibrations(path: str | os.PathLike[str], cals: dict[str, Calibration]
             fh.write(text)
             fh.flush()
             os.fsync(fh.fileno())
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; a params file must be readable like any other
         os.replace(tmp, target)
     except BaseException:
         with contextlib.suppress(OSError):

@@ -70,6 +70,7 @@ def test_yaml_round_trip_keeps_everything(tmp_path: Path, true_cal: Calibration)
     )
     path = save_calibrations(tmp_path / "cal.yaml", {"mag": cal, "accel": Calibration.identity(9.80665)})
     assert [p.name for p in tmp_path.iterdir()] == ["cal.yaml"]
+    assert path.stat().st_mode & 0o044, "a calibration file must be readable by other users (params file)"
     back = load_calibrations(path)
     assert set(back) == {"mag", "accel"}
     assert back["mag"].allclose(cal, rtol=0, atol=0)

@@ -1,0 +1,149 @@
+"""``margcal calibrate INPUT``: fit a calibration to a CSV or rosbag2 recording.
+
+Examples::
+
+    margcal calibrate mag.csv --sensor mag --model sym -o calib.yaml
+    margcal calibrate run.mcap --sensor accel --norm 9.80665 --json fit.json
+    margcal calibrate mag.csv --method lin_auto --model diag
+    margcal calibrate disturbed.mcap --sensor mag --loss huber
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..calibration import MODELS, Calibration, save_calibrations
+from ..errors import RecordingError
+from ..fitting import LOSSES, METHODS, SUPPORTED, fit
+
+__all__ = ["register", "run"]
+
+_DEFAULT_MODEL = {"sphere": "eye", "lin_auto": "diag"}
+
+
+def register(subparsers: Any) -> None:
+    """Add the ``calibrate`` subcommand."""
+    combos = "; ".join(f"{m}: {', '.join(ms)}" for m, ms in SUPPORTED.items())
+    p = subparsers.add_parser(
+        "calibrate",
+        help="fit offset and matrix to a recording (CSV or rosbag2), print them with uncertainties, write YAML",
+        description=f"Fit a magnetometer or accelerometer calibration to a recording. Models per method: {combos}.",
+    )
+    p.add_argument("input", type=Path, help="recording: .csv (t,x,y,z[,temp,gx,gy,gz]), .mcap, .db3 or a rosbag2 directory")
+    p.add_argument(
+        "--sensor",
+        choices=("mag", "accel"),
+        default=None,
+        help="which sensor to read (bags: MagneticField or Imu); default: guessed from the file",
+    )
+    p.add_argument("--topic", default=None, help="bag topic to read when several match")
+    p.add_argument(
+        "--model",
+        choices=MODELS,
+        default=None,
+        help="eye (offset + scale), diag (+ gains), sym (+ cross terms); default sym (eye: sphere, diag: lin_auto)",
+    )
+    p.add_argument("--method", choices=METHODS, default="lm", help="fitting method (default lm)")
+    p.add_argument(
+        "--norm",
+        type=float,
+        default=None,
+        help="reference norm in output units (e.g. 9.80665 for m/s^2); default: estimate it, det(W) = 1",
+    )
+    p.add_argument("--loss", choices=LOSSES, default="linear", help="robust loss for outliers such as disturbances (lm only)")
+    p.add_argument("--f-scale", type=float, default=None, help="robust loss scale in output units (default: from the residuals)")
+    p.add_argument(
+        "--samples",
+        choices=("auto", "all", "still"),
+        default="auto",
+        help="which samples to fit: all, or still ones (accelerometer inactivity gate, 2 s, CV 3e-3); "
+        "auto = still for accel, all for mag",
+    )
+    p.add_argument("--unit", default=None, help="unit of the calibrated output (default: the recording's unit)")
+    p.add_argument("-o", "--output", type=Path, default=None, help="write the calibration as ros__parameters YAML")
+    p.add_argument("--json", type=Path, default=None, help="write the result (parameters, std, stats) as JSON")
+    p.set_defaults(func=run)  # fmt: skip
+
+
+def _still_samples(rec: Any) -> np.ndarray:
+    """Averaged still samples of an accelerometer stream through the inactivity gate (Gietzelt Sec. 2.4)."""
+    from ..gate import InactivityGate
+
+    gate = InactivityGate()
+    out = []
+    gyro = rec.gyro
+    for i in range(len(rec.t)):
+        avg = gate.push(rec.t[i], rec.raw[i], None if gyro is None else gyro[i])
+        if avg is not None:
+            out.append(avg)
+    if not out:
+        msg = "no still periods found in the recording (inactivity gate: 2 s window, CV 3e-3); use --samples all"
+        raise RecordingError(msg)
+    return np.asarray(out, dtype=np.float64)
+
+
+def result_dict(cal: Calibration, source: str, n_read: int) -> dict[str, Any]:
+    """The fit as plain JSON types: calibration fields, one-sigma uncertainties, residual statistics."""
+    d = cal.to_dict()
+    d.pop("covariance", None)
+    d["std"] = cal.parameter_std()
+    d["input"] = source
+    d["samples_read"] = n_read
+    return d
+
+
+def _print(cal: Calibration, source: str, n_read: int) -> None:
+    std = cal.parameter_std()
+    unit = f" {cal.unit}" if cal.unit else ""
+    print(f"{cal.sensor or 'sensor'} calibration of {source}: model {cal.model}, method {cal.method}, "
+          f"{cal.stats.n_points if cal.stats else '?'} of {n_read} samples")  # fmt: skip
+    print(f"  norm     {cal.norm:.6g}{unit}" + (f" +- {std['norm']:.2g}" if "norm" in std else " (given)"))
+    for i, axis in enumerate("xyz"):
+        s = std.get(f"b_{axis}")
+        print(f"  offset {axis} {cal.offset[i]:>13.6g}" + (f" +- {s:.2g}" if s is not None else ""))
+    print("  matrix W (calibrated = W (raw - offset)):")
+    for i, axis in enumerate("xyz"):
+        row = "".join(f"{cal.matrix[i, j]:>13.6g}" for j in range(3))
+        sd = [std.get(f"w_{min(axis, b)}{max(axis, b)}", std.get("w")) for b in "xyz"]
+        sds = "".join(f"{'' if s is None else f'+-{s:.2g}':>11}" for s in sd)
+        print(f"    {row}    {sds}".rstrip())
+    if cal.covariance is None:
+        print("  (no covariance: method mvee is not a least-squares fit, or too few points)")
+    if cal.stats is not None:
+        st = cal.stats
+        print(f"  residual |W (v - b)| - norm: rms {st.rms:.4g}{unit} ({100 * st.rms_relative:.3g} % of the norm), "
+              f"max {st.max_abs:.4g}{unit}, iterations {st.iterations}")  # fmt: skip
+
+
+def run(args: argparse.Namespace) -> int:
+    """Read the recording, fit, print, write YAML/JSON; returns the exit code."""
+    from ..io import read_recording  # lazy: reading bags needs rosbags
+
+    rec = read_recording(args.input, sensor=args.sensor, topic=args.topic)
+    sensor = args.sensor or rec.sensor or ""
+    use_still = args.samples == "still" or (args.samples == "auto" and sensor == "accel")
+    points = _still_samples(rec) if use_still else np.asarray(rec.raw, dtype=np.float64)
+    if use_still:
+        print(f"inactivity gate: {len(points)} still samples from {len(rec.t)} readings", file=sys.stderr)
+    model = args.model or _DEFAULT_MODEL.get(args.method, "sym")
+    unit = args.unit if args.unit is not None else (rec.unit or "")
+    cal = fit(points, model=model, method=args.method, norm=args.norm, loss=args.loss, f_scale=args.f_scale,
+              sensor=sensor, unit=unit)  # fmt: skip
+    if rec.t is not None and len(rec.t):
+        cal = cal.replace(stamp=float(rec.t[-1]))
+    _print(cal, str(args.input), len(rec.t))
+    if args.output is not None:
+        path = save_calibrations(args.output, {sensor or "sensor": cal})
+        print(f"wrote {path}")
+    if args.json is not None:
+        d = result_dict(cal, str(args.input), len(rec.t))
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(d, indent=2) + "\n", encoding="utf-8")
+        print(f"wrote {args.json}")
+    return 0

@@ -1,0 +1,103 @@
+"""``margcal diagnose INPUT``: where the sim-to-real gap of a recording lies, which effect causes it,
+how far it shrinks; ``margcal diagnose-benchmark``: the withheld-effect benchmark.
+
+Examples::
+
+    margcal diagnose mag.csv --sensor mag --out diag/
+    margcal diagnose full_sphere.csv --sensor mag --rest-recording static_10min.csv --holdout 0.5
+    margcal diagnose run.mcap --sensor accel --norm 9.80665 --out diag/
+    margcal diagnose-benchmark --quick
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+from ..errors import ConfigError, MargCalError
+
+__all__ = ["register", "run", "run_benchmark"]
+
+
+def register(subparsers: Any) -> None:
+    """Add the ``diagnose`` and ``diagnose-benchmark`` subcommands."""
+    p = subparsers.add_parser(
+        "diagnose",
+        help="sim-to-real gap of a recording: where it lies, which effect causes it, how far it shrinks",
+        description="Compare a recording with its simulated twin stage by stage, fit every effect of the "
+                    "simulator's registry and rank them; writes DIR/diagnosis.json and DIR/report.html.",
+    )
+    p.add_argument("input", type=Path, help="recording: .csv (t,x,y,z[,temp]), .mcap, .db3 or a rosbag2 directory")
+    p.add_argument("--sensor", choices=("mag", "accel"), default=None, help="default: guessed from the file")
+    p.add_argument("--topic", default=None, help="bag topic to read when several match")
+    p.add_argument("--norm", type=float, default=None, help="reference norm of the calibrated vector (default: estimated)")
+    p.add_argument("--out", type=Path, default=Path("diagnosis"), help="output directory (default ./diagnosis)")
+    p.add_argument("--rest-noise", type=float, default=None,
+                   help="white noise std at rest, raw units (default: estimated from the recording)")
+    p.add_argument("--rest-recording", type=Path, default=None,
+                   help="a static recording of the same sensor to measure the rest noise from")
+    p.add_argument("--holdout", type=float, default=None, metavar="SPLIT",
+                   help="also fit on the first SPLIT of the recording (in time) and report the shrink on the rest")
+    p.add_argument("--n-fit", type=int, default=6000, help="samples used by the fitting stages (default 6000)")
+    p.add_argument("--no-validator", action="store_true", help="skip the validator stage and the retraining")
+    p.add_argument("--retrain-sets", type=int, default=120, help="simulated sets for the retrained validator")
+    p.set_defaults(func=run)
+    b = subparsers.add_parser("diagnose-benchmark", help="withheld-effect benchmark of the diagnosis (= margcal bench diagnosis)")
+    b.add_argument("bench_args", nargs=argparse.REMAINDER, help="passed on, e.g. --quick")
+    b.set_defaults(func=run_benchmark)
+
+
+def _progress(done: int, total: int, name: str) -> None:
+    print(f"\rdiagnose: effect {done}/{total} ({name})          ", end="" if done < total else "\n",
+          file=sys.stderr, flush=True)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run one diagnosis and write its report."""
+    from ..diagnosis import diagnose, diagnose_holdout, rest_noise, summary, validator_downstream, write_report
+    from ..io import read_recording
+
+    if args.n_fit < 100:
+        msg = f"--n-fit must be at least 100, got {args.n_fit}"
+        raise ConfigError(msg)
+    rec = read_recording(args.input, sensor=args.sensor, topic=args.topic)
+    sensor = args.sensor or rec.sensor
+    noise = args.rest_noise
+    if args.rest_recording is not None:
+        noise = rest_noise(read_recording(args.rest_recording, sensor=sensor).raw)
+        print(f"rest noise from {args.rest_recording}: {noise:.4g} raw units", file=sys.stderr)
+    validator = None
+    if not args.no_validator:
+        from ..validation import load_default_validator
+
+        try:
+            validator = load_default_validator()
+        except MargCalError as exc:
+            print(f"diagnose: validator stage skipped: {exc}", file=sys.stderr)
+    options = {"sensor": sensor, "norm": args.norm, "rest_noise": noise, "n_fit": args.n_fit, "validator": validator}
+    diag = diagnose(rec, progress=_progress, **options)
+    diag.downstream = validator_downstream(diag, validator, n_sets=args.retrain_sets)
+    extra = None
+    if args.holdout is not None:
+        held = diagnose_holdout(rec, split=args.holdout, **options)
+        extra = {"holdout": {"split": args.holdout, "effect": held["effect"], "magnitude": held["magnitude"],
+                             "cause_on_first_part": held["fit"].cause, "gap_before": held["gap_before"],
+                             "gap_after": held["gap_after"], "shrink": held["shrink"],
+                             "stages_before": held["stages_before"], "stages_after": held["stages_after"]}}
+    jpath, hpath = write_report(diag, args.out, extra=extra)
+    print(summary(diag))
+    if extra is not None:
+        h = extra["holdout"]
+        print(f"withheld part: {h['effect']} fitted on the first {100 * args.holdout:.0f} % shrinks the gap of the rest "
+              f"{h['gap_before']:.2f} -> {h['gap_after']:.2f} ({100 * h['shrink']:.0f} %)")
+    print(f"wrote {jpath} and {hpath} ({diag.seconds:.1f} s)")
+    return 0
+
+
+def run_benchmark(args: argparse.Namespace) -> int:
+    """Dispatch to ``ros_margcal.bench.diagnosis.main``."""
+    from ..bench.diagnosis import main
+
+    return int(main(list(args.bench_args)))

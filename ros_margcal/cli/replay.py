@@ -1,0 +1,255 @@
+"""``margcal replay RECORDING``: the online pipeline, offline, over a rosbag2 or CSV recording.
+
+Every Imu / MagneticField message of a bag (or every row of a CSV) goes through the same
+``SensorCalibrator`` the node runs, in recording order, with the message stamps as time. The
+command shows progress on stderr, prints the status timeline (every event, and the status every
+``--status-every`` seconds of recording time) and the final calibration of each sensor, and can
+write the timeline and final calibrations as JSON (``--json``) and a coverage plot (``--plot``: the
+buffered directions as azimuth phi against elevation theta about the calibration centre, the 2D
+projection of Camps et al. 2009, Fig. 5).
+
+``margcal replay --example`` runs the recording shipped with the package (a tumbling IMU with still
+periods and a hard-iron jump half way, made by ``scripts/make_example.py``) and compares the result
+with its known truth.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from collections.abc import Iterator
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..calibration import Calibration, load_calibrations
+from ..errors import ConfigError
+from ..pipeline import Event, EventKind, SensorCalibrator, Status
+from ..pipeline_config import PipelineConfig
+
+__all__ = ["example_paths", "register", "replay", "run"]
+
+_SENSOR_OF_KIND = {"imu": "accel", "mag": "mag"}
+_UNIT_OF_SENSOR = {"accel": "m/s^2", "mag": "T"}
+
+
+def example_paths() -> tuple[Path, Path]:
+    """The shipped example recording and its truth file."""
+    data = resources.files("ros_margcal") / "data"
+    return Path(str(data / "example_imu.mcap")), Path(str(data / "example_truth.yaml"))
+
+
+def register(subparsers: Any) -> None:
+    """Add the ``replay`` subcommand."""
+    p = subparsers.add_parser("replay", help="run the streaming calibrator over a rosbag2 or CSV recording",
+                              description=__doc__.splitlines()[0])
+    p.add_argument("recording", nargs="?", type=Path, help="rosbag2 (.mcap/.db3 or folder) or CSV (t,x,y,z[,gx,gy,gz])")
+    p.add_argument("--example", action="store_true", help="replay the example recording shipped with ros_margcal")
+    p.add_argument("--sensor", choices=("mag", "accel"), help="CSV: which sensor the file holds (default: from the name)")
+    p.add_argument("--unit", help="CSV: raw unit (default T for mag, m/s^2 for accel)")
+    p.add_argument("--truth", type=Path, help="calibration YAML with the true calibrations, to report the error")
+    p.add_argument("--status-every", type=float, default=10.0, metavar="S",
+                   help="status line every S seconds of recording time (default 10; 0 = events only)")
+    p.add_argument("--json", type=Path, metavar="FILE", help="write the status timeline and final calibrations as JSON")
+    p.add_argument("--plot", type=Path, metavar="FILE.png", help="write the coverage plot (phi vs theta)")
+    p.add_argument("-q", "--quiet", action="store_true", help="no timeline, only the final calibrations")
+    p.set_defaults(func=run)
+
+
+def _samples(path: Path, sensor: str | None, unit: str | None) -> tuple[Iterator[tuple[float, str, Any, Any]], dict[str, str]]:
+    """(t, sensor, xyz, gyro) in recording order, and the raw unit of each sensor."""
+    from .. import io
+
+    if path.suffix.lower() == ".csv":
+        rec = io.read_recording(path, sensor=sensor)
+        s = sensor or rec.sensor or "mag"
+        gyro = rec.gyro if rec.gyro is not None else [None] * len(rec)
+        it = ((float(t), s, v, g) for t, v, g in zip(rec.t, rec.raw, gyro, strict=True))
+        return it, {s: unit or rec.unit or _UNIT_OF_SENSOR[s]}
+    it = ((m.t, _SENSOR_OF_KIND[m.kind], m.xyz, m.gyro) for m in io.iter_bag_messages(path))
+    return it, dict(_UNIT_OF_SENSOR)
+
+
+def replay(path: Path, *, sensor: str | None = None, unit: str | None = None, status_every: float = 10.0,
+           progress: bool = True, on_line: Any = None) -> dict[str, Any]:
+    """Run the pipeline over a recording; returns calibrators, timeline and counts.
+
+    Args:
+        path: the recording.
+        sensor, unit: for a CSV (see the command's options).
+        status_every: seconds of recording time between timeline status entries (0: events only).
+        progress: show a counter on stderr.
+        on_line: called with each timeline line (str) as it happens.
+    """
+    samples, units = _samples(path, sensor, unit)
+    bar = _Progress(enabled=progress)
+    cals: dict[str, SensorCalibrator] = {}
+    timeline: list[dict[str, Any]] = []
+    next_status: dict[str, float] = {}
+    n = 0
+    for t, s, xyz, gyro in samples:
+        cal = cals.get(s)
+        if cal is None:
+            cal = cals[s] = SensorCalibrator(s, PipelineConfig.for_sensor(s, units.get(s)))
+            next_status[s] = t
+        for ev in cal.push(t, xyz, gyro):
+            timeline.append(_event_entry(ev))
+            if on_line:
+                bar.clear()
+                on_line(f"{ev.t:9.2f} s  {s:5s}  {ev.kind.value:10s} {ev.message}")
+        if status_every > 0 and t >= next_status[s]:
+            st = cal.status(t)
+            timeline.append({"kind": "status", **st.to_dict()})
+            next_status[s] = t + status_every
+            if on_line:
+                bar.clear()
+                on_line(f"{t:9.2f} s  {s:5s}  {'status':10s} [{st.level.name}] {st.message}")
+        n += 1
+        if n % 1000 == 0:
+            bar.show(f"replay: {n} messages, t = {t:.1f} s")
+    bar.show(f"replay: {n} messages done")
+    bar.clear(final=True)
+    return {"calibrators": cals, "timeline": timeline, "messages": n}
+
+
+class _Progress:
+    """A one-line ``\r`` counter on stderr that steps aside for the timeline lines on stdout."""
+
+    def __init__(self, enabled: bool) -> None:
+        self.enabled = enabled
+        self.width = 0
+
+    def show(self, text: str) -> None:
+        if self.enabled:
+            sys.stdout.flush()
+            print(f"\r{text}", end="", file=sys.stderr, flush=True)
+            self.width = len(text)
+
+    def clear(self, final: bool = False) -> None:
+        if self.enabled and self.width:
+            print("\n" if final else f"\r{' ' * self.width}\r", end="", file=sys.stderr, flush=True)
+            self.width = 0
+
+
+def _event_entry(ev: Event) -> dict[str, Any]:
+    out: dict[str, Any] = {"kind": ev.kind.value, "t": ev.t, "sensor": ev.sensor, "message": ev.message}
+    if ev.kind is EventKind.CALIBRATED and ev.calibration is not None:
+        out["calibration"] = ev.calibration.to_dict()
+    return out
+
+
+def _truth_for(truth: dict[str, Calibration], sensor: str) -> Calibration | None:
+    """The truth of ``sensor``: its own entry or the latest ``<sensor>_*`` one (largest stamp)."""
+    if sensor in truth:
+        return truth[sensor]
+    cands = [c for k, c in truth.items() if k.startswith(f"{sensor}_")]
+    return max(cands, key=lambda c: c.stamp) if cands else None
+
+
+def _compare(cal: Calibration, truth: Calibration) -> dict[str, float]:
+    """Offset error over the norm, and the RMS relative norm error on 2000 uniform true directions."""
+    rng = np.random.default_rng(0)
+    d = rng.normal(size=(2000, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    raw = truth.inverse_apply(d * truth.norm)
+    e = cal.norm_error(raw) / cal.norm
+    return {"offset_error_rel": float(np.linalg.norm(cal.offset - truth.offset) / truth.norm),
+            "norm_error_rms_rel": float(np.sqrt(np.mean(e * e)))}
+
+
+def _plot(cals: dict[str, SensorCalibrator], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, max(1, len(cals)), figsize=(6 * max(1, len(cals)), 4), squeeze=False)
+    for ax, (s, c) in zip(axes[0], sorted(cals.items()), strict=False):
+        pts = c.buffer.points()
+        centre = c.calibration.offset if c.calibration is not None else c.buffer.center
+        d = pts - centre
+        if c.calibration is not None:
+            d = d @ c.calibration.matrix.T  # directions of the calibrated field
+        theta = np.degrees(np.arctan2(d[:, 2], np.hypot(d[:, 0], d[:, 1]))) if len(d) else np.zeros(0)
+        phi = np.degrees(np.arctan2(d[:, 1], d[:, 0])) if len(d) else np.zeros(0)
+        ax.scatter(phi, theta, s=6)
+        ax.set_xlim(-180, 180)
+        ax.set_ylim(-90, 90)
+        ax.set_xlabel("phi (azimuth), deg")
+        ax.set_ylabel("theta (elevation), deg")
+        st = c.status()
+        ax.set_title(f"{s}: {st.state.value}, {len(pts)} samples, {100 * st.coverage:.0f} % of bins")
+        ax.grid(True, alpha=0.3)
+    fig.suptitle("Buffered directions (Camps et al. 2009, Fig. 5 projection)")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def _format_cal(cal: Calibration) -> str:
+    m = cal.matrix
+    rows = "\n".join("      [" + ", ".join(f"{x: .6f}" for x in r) + "]" for r in m)
+    st = cal.stats
+    fit = "" if st is None else f"    fit: {st.n_points} samples, residual RMS {100 * st.rms_relative:.3f} %\n"
+    return (f"    offset: [{', '.join(f'{x:.6g}' for x in cal.offset)}] {cal.unit}\n    matrix:\n{rows}\n"
+            f"    norm: {cal.norm:.6g} {cal.unit}\n{fit}    stamp: {cal.stamp:.2f} s")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Entry of ``margcal replay``."""
+    truth_path: Path | None = args.truth
+    if args.example:
+        path, example_truth = example_paths()
+        truth_path = truth_path or example_truth
+    elif args.recording is not None:
+        path = args.recording
+    else:
+        msg = "give a RECORDING (rosbag2 or CSV) or --example"
+        raise ConfigError(msg)
+    if not math.isfinite(args.status_every) or args.status_every < 0:
+        msg = f"--status-every must be >= 0, got {args.status_every}"
+        raise ConfigError(msg)
+    print(f"replaying {path}")
+    printer = None if args.quiet else print
+    result = replay(path, sensor=args.sensor, unit=args.unit, status_every=args.status_every, on_line=printer)
+    cals: dict[str, SensorCalibrator] = result["calibrators"]
+    truth = load_calibrations(truth_path) if truth_path is not None else {}
+    summary: dict[str, Any] = {}
+    print(f"\nfinal state after {result['messages']} messages:")
+    for s, c in sorted(cals.items()):
+        st: Status = c.status()
+        entry: dict[str, Any] = {"state": st.state.value, "status": st.to_dict(),
+                                 "calibration": None if c.calibration is None else c.calibration.to_dict()}
+        print(f"  {s}: {st.state.value} [{st.level.name}] {st.message}")
+        if c.calibration is not None:
+            print(_format_cal(c.calibration))
+            ref = _truth_for(truth, s)
+            if ref is not None:
+                cmp_ = _compare(c.calibration, ref)
+                entry["truth_comparison"] = cmp_
+                print(f"    vs truth: offset error {100 * cmp_['offset_error_rel']:.2f} % of the norm, "
+                      f"norm error {100 * cmp_['norm_error_rms_rel']:.3f} % RMS")
+        summary[s] = entry
+    if args.json is not None:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        doc = {"recording": str(path), "messages": result["messages"], "sensors": summary, "timeline": result["timeline"]}
+        args.json.write_text(json.dumps(doc, indent=1, default=_json_default), encoding="utf-8")
+        print(f"wrote {args.json}")
+    if args.plot is not None:
+        _plot(cals, args.plot)
+        print(f"wrote {args.plot}")
+    return 0
+
+
+def _json_default(x: Any) -> Any:
+    if isinstance(x, np.generic):
+        return x.item()
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    msg = f"not JSON serialisable: {type(x).__name__}"
+    raise TypeError(msg)

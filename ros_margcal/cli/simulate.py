@@ -1,0 +1,189 @@
+"""``margcal simulate``: write a simulated recording (CSV or rosbag2) and optionally its true calibration.
+
+Examples::
+
+    margcal simulate out.csv --sensor mag --pattern cap --param half_angle_deg=60 -n 300 --noise 0.01
+    margcal simulate out.mcap --sensor imu --pattern tumbling --duration 120 --effect bias_drift=0.02
+    margcal simulate out.csv --sensor accel --pattern tumbling --rate 100 --truth truth.yaml
+    margcal simulate out.mcap --sensor imu --pattern tumbling --duration 300 --jump-at 150 --truth t.yaml
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..calibration import save_calibrations
+from ..errors import ConfigError
+from ..io import BAG_SUFFIXES, write_bag, write_csv
+from ..simulation import (
+    EFFECTS,
+    PATTERNS,
+    HardIronJump,
+    Recording,
+    directions,
+    magnetometer_stream,
+    random_sensor,
+    simulate,
+    tumbling,
+    tumbling_motion,
+)
+
+__all__ = ["register", "run"]
+
+TIME_SERIES = ("tumbling", "smooth")
+TOPICS = {"accel": "/imu/data_raw", "mag": "/imu/mag"}
+
+
+def _key_value(text: str) -> tuple[str, str]:
+    if "=" not in text:
+        msg = f"expected name=value, got {text!r}"
+        raise argparse.ArgumentTypeError(msg)
+    key, value = text.split("=", 1)
+    return key.strip(), value.strip()
+
+
+def _effect(text: str) -> tuple[str, float]:
+    name, value = _key_value(text)
+    if name not in EFFECTS:
+        msg = f"unknown effect {name!r}; choose from {', '.join(sorted(EFFECTS))}"
+        raise argparse.ArgumentTypeError(msg)
+    try:
+        return name, float(value) if value else EFFECTS[name].default_magnitude
+    except ValueError:
+        msg = f"effect magnitude must be a number, got {value!r}"
+        raise argparse.ArgumentTypeError(msg) from None
+
+
+def _param(text: str) -> tuple[str, Any]:
+    key, value = _key_value(text)
+    try:
+        return key, ast.literal_eval(value)
+    except (ValueError, SyntaxError):
+        return key, value
+
+
+def register(subparsers: Any) -> None:
+    """Add the ``simulate`` subcommand."""
+    effects_help = "; ".join(f"{n} [{e.magnitude_unit}, e.g. {e.default_magnitude:g}]" for n, e in EFFECTS.items())
+    p = subparsers.add_parser(
+        "simulate",
+        help="write a simulated recording (CSV or rosbag2 .mcap/.db3) from a random true sensor",
+        description="Simulate raw sensor data from a random true calibration. Output format by suffix: "
+        ".csv, .mcap, .db3, or a directory (rosbag2). Effects: " + effects_help,
+    )
+    p.add_argument("output", type=Path, help="output file (.csv, .mcap, .db3) or rosbag2 directory")
+    p.add_argument("--sensor", choices=("mag", "accel", "imu"), default="mag",
+                   help="sensor to simulate; imu = accelerometer+gyro and magnetometer on one motion (bags only)")
+    p.add_argument("--pattern", choices=(*PATTERNS, *TIME_SERIES), default="uniform",
+                   help="coverage pattern of n samples, or a time series: tumbling (still periods), smooth (mag)")
+    p.add_argument("--param", type=_param, action="append", default=[], metavar="KEY=VALUE",
+                   help="pattern parameter, e.g. half_angle_deg=60 or axis=(1,0,0) (repeatable)")
+    p.add_argument("-n", "--n", type=int, default=300, help="number of samples of a pattern (default 300)")
+    p.add_argument("--duration", type=float, default=60.0, help="length of a time series, s (default 60)")
+    p.add_argument("--rate", type=float, default=None,
+                   help="sample rate, Hz (default 100 for accel/imu time series, 50 for mag, 1 for patterns)")
+    p.add_argument("--noise", type=float, default=None, help="white noise std as a fraction of the norm "
+                   "(default 0.005; 0.002 for tumbling accelerometers)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--model", choices=("eye", "diag", "sym"), default="sym", help="true sensor model (default sym)")
+    p.add_argument("--effect", type=_effect, action="append", default=[], metavar="NAME=MAGNITUDE",
+                   help="add an effect (repeatable); an empty magnitude uses the default")
+    p.add_argument("--jump-at", type=float, default=None, metavar="SECONDS",
+                   help="magnetometer time series: a hard-iron jump at this time (truth file gets mag_before/mag_after)")
+    p.add_argument("--jump-size", type=float, default=0.8, metavar="FRACTION",
+                   help="size of the hard-iron jump as a fraction of the field norm, random direction (default 0.8)")
+    p.add_argument("--truth", type=Path, default=None, help="also write the true calibration(s) as YAML")
+    p.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap", help="storage of a bag directory")
+    p.add_argument("--force", action="store_true", help="overwrite an existing output")
+    p.set_defaults(func=run)
+
+
+def _make(args: argparse.Namespace, rng: np.random.Generator) -> dict[str, Recording]:
+    effects = dict(args.effect)
+    params = dict(args.param)
+    kinds = ("accel", "mag") if args.sensor == "imu" else (args.sensor,)
+    truths = {k: random_sensor(rng, k, model=args.model) for k in kinds}
+    out: dict[str, Recording] = {}
+    if args.pattern in PATTERNS:
+        if args.jump_at is not None:
+            msg = "--jump-at needs a time series (--pattern tumbling or smooth)"
+            raise ConfigError(msg)
+        if args.sensor == "imu":
+            msg = "--sensor imu needs a time series (--pattern tumbling)"
+            raise ConfigError(msg)
+        rate = args.rate or 1.0
+        t = np.arange(args.n) / rate
+        truth = truths[args.sensor]
+        dirs = directions(args.pattern, args.n, rng, **params)
+        noise = 0.005 if args.noise is None else args.noise
+        out[args.sensor] = simulate(truth, dirs, noise=noise, rng=rng, t=t, effects=effects)
+        return out
+    if params:
+        msg = f"--param applies to coverage patterns, not to the {args.pattern!r} time series"
+        raise ConfigError(msg)
+    events = []
+    if args.jump_at is not None:
+        if "mag" not in kinds:
+            msg = "--jump-at is a magnetometer event; use --sensor mag or imu"
+            raise ConfigError(msg)
+        direction = rng.normal(size=3)
+        delta = args.jump_size * truths["mag"].norm * direction / np.linalg.norm(direction)
+        events.append(HardIronJump(args.jump_at, (float(delta[0]), float(delta[1]), float(delta[2]))))
+    if args.pattern == "smooth" and args.sensor != "mag":
+        msg = "--pattern smooth is a magnetometer motion; use tumbling for accel/imu"
+        raise ConfigError(msg)
+    rate = args.rate or (50.0 if args.sensor == "mag" else 100.0)
+    motion = tumbling_motion(args.duration, rate, rng) if args.pattern == "tumbling" else "smooth"
+    for k in kinds:
+        eff = {n: m for n, m in effects.items() if k in EFFECTS[n].sensors or args.sensor != "imu"}
+        if k == "accel":
+            noise = 0.002 if args.noise is None else args.noise
+            out[k] = tumbling(truths[k], args.duration, rate, rng, noise=noise, effects=eff,
+                              motion=motion if not isinstance(motion, str) else None)
+        else:
+            noise = 0.005 if args.noise is None else args.noise
+            mag_rate = rate / 2 if args.sensor == "imu" else rate
+            out[k] = magnetometer_stream(truths[k], args.duration, mag_rate, rng, motion=motion, noise=noise, effects=eff,
+                                         events=events)
+    return out
+
+
+def run(args: argparse.Namespace) -> int:
+    """Simulate and write; returns the exit code."""
+    for name, m in args.effect:
+        if not (math.isfinite(m) and m >= 0):
+            msg = f"effect {name} magnitude must be >= 0, got {m}"
+            raise ConfigError(msg)
+    out: Path = args.output
+    is_csv = out.suffix.lower() == ".csv"
+    if is_csv and args.sensor == "imu":
+        msg = "a CSV holds one sensor; use --sensor mag or accel, or write a bag (.mcap/.db3)"
+        raise ConfigError(msg)
+    if is_csv and out.exists() and not args.force:
+        msg = f"{out} exists already; pass --force to replace it"
+        raise ConfigError(msg)
+    recs = _make(args, np.random.default_rng(args.seed))
+    if is_csv:
+        write_csv(out, next(iter(recs.values())))
+    else:
+        storage = args.storage if out.suffix not in BAG_SUFFIXES else ("mcap" if out.suffix == ".mcap" else "sqlite3")
+        write_bag(out, {TOPICS[k]: r for k, r in recs.items()}, storage=storage, overwrite=args.force)
+    for kind, rec in recs.items():
+        effects = ", ".join(f"{n}={m:g}" for n, m in rec.effects.items()) or "none"
+        print(f"{kind}: {len(rec)} samples over {rec.t[-1] - rec.t[0]:.1f} s, effects: {effects}")
+    print(f"wrote {out}")
+    if args.truth is not None:
+        truths = {k: r.truth for k, r in recs.items() if r.truth is not None}
+        mag = recs.get("mag")
+        if args.jump_at is not None and mag is not None:
+            truths["mag_before"] = truths.pop("mag")
+            truths["mag_after"] = mag.truth_at(mag.t[-1]).replace(stamp=float(args.jump_at))
+        save_calibrations(args.truth, truths)
+        print(f"wrote true calibration(s) {', '.join(truths)} to {args.truth}")
+    return 0

@@ -1,0 +1,344 @@
+"""Labelled calibration sets from the simulator, to train and evaluate the validators.
+
+Each set is one simulated calibration attempt (Olivares et al. 2013, §4, pre-processing steps):
+
+1. a random true sensor (``simulation.random_sensor``: magnetometer or accelerometer, random offset,
+   gains and symmetric cross terms), a random noise level and a random coverage pattern with random
+   parameters and size (caps of any size, bands, partial great circles, the axis ellipses of Fig. 7,
+   random walks, a few static poses, uniform with few or many points);
+2. the ellipsoid fit of the set (``fitting.fit``, model ``sym``, scale-free: ``norm=None``);
+3. the *label*: the calibration error of that fit on a uniform held-out test set of the same sensor
+   (noiseless directions, so the label is the calibration error, not the test noise), the RMS of
+   ``|W (v - b)| / norm - 1``; a set whose fit fails gets ``FAILED_ERROR``;
+4. the *features*: the coverage indicators (``coverage.compute_indicators``: raw A–D and the
+   normalised ones) plus the proposed information indicator E (``information_indicator``), about
+   the centre and radius of a linear sphere fit of the set — what the node (``pipeline``) uses
+   before it has a calibration — and the baseline scores of ``baselines.baseline_scores`` given the
+   set's own ellipsoid fit.
+
+Choices, documented: the noise std is log-uniform in 0.1–0.5 % of the norm (consumer MEMS
+magnetometers, accelerometers after the inactivity gate); sets hold 40–600 samples; the fit is the
+plain least-squares ``lm`` (the node's robust loss changes no label here — the simulator adds no
+outliers — and costs nine times more); magnetometers and accelerometers are mixed, so the raw
+indicators C and D (raw units, tesla vs m/s²) are not comparable across sets, unlike in the paper's
+single-sensor data — the normalised ones are.
+
+Every set ``i`` of a corpus with seed ``s`` draws from ``np.random.default_rng([s, i])``, so a corpus
+is reproducible, any set can be regenerated alone, and sets are independent of the corpus size.
+``group = i % 2`` splits the corpus into the paper's "dataset 1" and "dataset 2" for the
+train-on-one / test-on-the-other protocol.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import os
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, ClassVar, TextIO
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .baselines import BASELINES, baseline_scores
+from .calibration import Calibration
+from .coverage import compute_indicators
+from .errors import CalibrationFileError, ConfigError, MargCalError
+from .fitting import fit
+from .simulation import directions, random_sensor, simulate
+
+__all__ = [
+    "FAILED_ERROR",
+    "FEATURES",
+    "Corpus",
+    "build_corpus",
+    "information_indicator",
+    "make_set",
+]
+
+log = logging.getLogger(__name__)
+
+Array = NDArray[np.float64]
+
+FEATURES: tuple[str, ...] = ("b_frac", "c_norm", "d_norm", "e_info", "A", "B", "C", "D")
+"""Feature columns: the normalised indicators, the proposed information indicator E (``e_info``),
+then the raw indicators A–D of the paper."""
+
+_E_UNIFORM = 2.0 / 15.0
+"""Smallest eigenvalue of the information matrix of ``information_indicator`` for uniform directions."""
+
+FAILED_ERROR = 1.0
+"""Label of a set whose fit raised (degenerate or non-converged): 100 % error, certainly ill."""
+
+
+@dataclass
+class Corpus:
+    """Labelled calibration sets, one row per set.
+
+    Attributes:
+        features: (n, len(feature_names)) indicator values.
+        error: (n,) calibration error of each set's fit on held-out data (RMS relative norm error).
+        baselines: (n, len(baseline_names)) raw baseline scores.
+        pattern: (n,) coverage pattern name of each set.
+        kind: (n,) "mag" or "accel".
+        n_points: (n,) samples in each set.
+        noise: (n,) noise std as a fraction of the norm.
+        group: (n,) 0 or 1, the half of the train/test swap.
+        meta: how the corpus was made (seed, size, options).
+    """
+
+    features: Array
+    error: Array
+    baselines: Array
+    pattern: NDArray[np.str_]
+    kind: NDArray[np.str_]
+    n_points: NDArray[np.int64]
+    noise: Array
+    group: NDArray[np.int64]
+    feature_names: tuple[str, ...] = FEATURES
+    baseline_names: tuple[str, ...] = tuple(BASELINES)
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    FORMAT_VERSION: ClassVar[int] = 1
+
+    def __len__(self) -> int:
+        return int(self.error.shape[0])
+
+    def column(self, name: str) -> Array:
+        """One feature or baseline column by name."""
+        if name in self.feature_names:
+            return self.features[:, self.feature_names.index(name)]
+        if name in self.baseline_names:
+            return self.baselines[:, self.baseline_names.index(name)]
+        msg = f"no column {name!r}; features {self.feature_names}, baselines {self.baseline_names}"
+        raise ConfigError(msg)
+
+    def matrix(self, names: tuple[str, ...] | list[str]) -> Array:
+        """Feature rows (n, len(names)) for a validator with these inputs."""
+        return np.column_stack([self.column(n) for n in names])
+
+    def good(self, max_error: float) -> NDArray[np.bool_]:
+        """The positive class: sets whose calibration error is below ``max_error``."""
+        return self.error < max_error
+
+    def subset(self, mask: NDArray[np.bool_] | NDArray[np.intp]) -> Corpus:
+        """The sets selected by a boolean mask or index array."""
+        return dataclasses.replace(
+            self, features=self.features[mask], error=self.error[mask], baselines=self.baselines[mask],
+            pattern=self.pattern[mask], kind=self.kind[mask], n_points=self.n_points[mask],
+            noise=self.noise[mask], group=self.group[mask], meta=dict(self.meta),
+        )
+
+    def save(self, path: str | os.PathLike[str]) -> Path:
+        """Write the corpus as a compressed ``.npz`` (no pickles)."""
+        p = Path(path)
+        meta = {k: str(v) for k, v in self.meta.items()}
+        np.savez_compressed(
+            p, format_version=np.int64(self.FORMAT_VERSION), features=self.features, error=self.error,
+            baselines=self.baselines, pattern=self.pattern.astype(str), kind=self.kind.astype(str),
+            n_points=self.n_points, noise=self.noise, group=self.group,
+            feature_names=np.array(self.feature_names), baseline_names=np.array(self.baseline_names),
+            meta_keys=np.array(list(meta), dtype=str), meta_values=np.array(list(meta.values()), dtype=str),
+        )
+        return p if p.suffix == ".npz" else p.with_name(p.name + ".npz")
+
+    @classmethod
+    def load(cls, path: str | os.PathLike[str]) -> Corpus:
+        """Read a corpus written by ``save``; CalibrationFileError if corrupt or newer."""
+        p = Path(path)
+        try:
+            with np.load(p, allow_pickle=False) as z:
+                version = int(z["format_version"])
+                if version > cls.FORMAT_VERSION:
+                    msg = f"{p}: corpus format_version {version} is newer than this ros_margcal reads ({cls.FORMAT_VERSION})"
+                    raise CalibrationFileError(msg)
+                c = cls(
+                    features=z["features"], error=z["error"], baselines=z["baselines"], pattern=z["pattern"],
+                    kind=z["kind"], n_points=z["n_points"], noise=z["noise"], group=z["group"],
+                    feature_names=tuple(str(s) for s in z["feature_names"]),
+                    baseline_names=tuple(str(s) for s in z["baseline_names"]),
+                    meta=dict(zip(z["meta_keys"].tolist(), z["meta_values"].tolist(), strict=True)),
+                )
+        except CalibrationFileError:
+            raise
+        except (OSError, KeyError, ValueError) as exc:
+            msg = f"{p}: not a readable corpus file ({type(exc).__name__}: {exc})"
+            raise CalibrationFileError(msg) from exc
+        n = len(c)
+        if c.features.shape != (n, len(c.feature_names)) or c.baselines.shape != (n, len(c.baseline_names)):
+            msg = f"{p}: corrupt corpus (column shapes disagree)"
+            raise CalibrationFileError(msg)
+        return c
+
+
+# -- one set ---------------------------------------------------------------------------------------
+
+
+def _log_uniform(rng: np.random.Generator, lo: float, hi: float) -> float:
+    return float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
+
+
+def _random_pattern(rng: np.random.Generator, n_min: int, n_max: int) -> tuple[str, int, dict[str, Any]]:
+    """A coverage pattern with random parameters and a random size (log-uniform in [n_min, n_max])."""
+    axis = tuple(rng.normal(size=3))
+    n = round(_log_uniform(rng, n_min, n_max))
+    # weights favour the partial patterns whose verdict is hard; uniform sets cover the good end
+    names = ("uniform", "few_uniform", "cap", "band", "great_circle", "axis_ellipses", "random_walk")
+    pattern = str(rng.choice(names, p=(0.16, 0.10, 0.22, 0.16, 0.12, 0.08, 0.16)))
+    params: dict[str, Any] = {}
+    if pattern == "few_uniform":
+        params = {"k": int(rng.integers(3, 25)), "jitter_deg": float(rng.uniform(0.5, 15.0))}
+    elif pattern == "cap":
+        params = {"half_angle_deg": float(rng.uniform(10.0, 180.0)), "axis": axis}
+    elif pattern == "band":
+        lo = float(rng.uniform(-90.0, 60.0))
+        params = {"lat_min_deg": lo, "lat_max_deg": float(rng.uniform(lo + 5.0, 90.0)), "axis": axis}
+    elif pattern == "great_circle":
+        params = {"arc_deg": float(rng.uniform(45.0, 360.0)), "n_circles": int(rng.integers(1, 6))}
+    elif pattern == "axis_ellipses":
+        params = {"jitter_deg": float(rng.uniform(0.0, 20.0))}
+    elif pattern == "random_walk":
+        params = {"step_deg": _log_uniform(rng, 0.5, 20.0)}
+    return pattern, n, params
+
+
+def _indicator_frame(points: Array) -> tuple[Array, float]:
+    """Centre and radius the indicators are normalised with: a linear sphere fit, as the node does
+    before its first calibration (``pipeline``); the mean and mean distance if even that fails."""
+    try:
+        sph = fit(points, model="eye", method="sphere", norm=None)
+        if math.isfinite(sph.norm) and sph.norm > 0:
+            return sph.offset, float(sph.norm)
+    except MargCalError:
+        pass
+    center = points.mean(axis=0)
+    return center, float(np.linalg.norm(points - center, axis=1).mean()) or 1.0
+
+
+def information_indicator(points: Array, center: Array, radius: float) -> float:
+    """Proposed indicator E: how well the directions determine the ellipsoid (E-optimal design).
+
+    With ``u_i = (v_i - c) / r`` and the Jacobian row of the ellipsoid residual at the sphere,
+    ``j_i = (u_x, u_y, u_z, u_x^2, u_y^2, u_z^2, 2 u_x u_y, 2 u_x u_z, 2 u_y u_z)`` (offset and the
+    six entries of the symmetric matrix), the information matrix is ``M = (1/n) sum j_i j_i^T``.
+    Its smallest eigenvalue is ~0 when some ellipsoid deformation leaves every sample's norm
+    unchanged — a cap, a band, or two great circles (the quadric ``(n1·u)(n2·u)`` vanishes on
+    both), which C and D rate as well covered. Returned as ``log10(lambda_min / (2/15))``: 0 for
+    uniform directions, very negative for sets that cannot determine the fit (floored at -12).
+    """
+    u = (points - center) / radius
+    x, y, z = u[:, 0], u[:, 1], u[:, 2]
+    jac = np.column_stack([x, y, z, x * x, y * y, z * z, 2 * x * y, 2 * x * z, 2 * y * z])
+    lam = float(np.linalg.eigvalsh(jac.T @ jac / u.shape[0])[0])
+    return float(np.log10(max(lam / _E_UNIFORM, 1e-12)))
+
+
+def make_set(seed: int, index: int, *, n_min: int = 40, n_max: int = 600, noise_range: tuple[float, float] = (1e-3, 5e-3),
+             n_test: int = 400, model: str = "sym", method: str = "lm", loss: str = "linear",
+             pattern: str | None = None, n: int | None = None, params: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Simulate, fit, label and describe set ``index`` of the corpus with ``seed``.
+
+    Args:
+        seed: corpus seed; index: set number (the set draws from ``default_rng([seed, index])``).
+        n_min, n_max: range of the set size (log-uniform).
+        noise_range: range of the noise std as a fraction of the norm (log-uniform).
+        n_test: held-out uniform directions for the label.
+        model, method, loss: the fit whose error is the label (``fitting.fit``).
+        pattern, n, params: force the coverage pattern, size and parameters (else random).
+
+    Returns:
+        A dict with ``features`` (len(FEATURES),), ``error``, ``baselines`` (len(BASELINES),),
+        ``pattern``, ``kind``, ``n_points``, ``noise``, ``points`` and ``fit`` (None if it failed).
+    """
+    rng = np.random.default_rng([seed, index])
+    kind = "mag" if rng.uniform() < 0.6 else "accel"
+    truth = random_sensor(rng, kind, model="sym", gain_spread=float(rng.uniform(0.01, 0.2)),
+                          skew=float(rng.uniform(0.0, 0.06)))
+    noise = _log_uniform(rng, *noise_range)
+    rand_pattern, rand_n, rand_params = _random_pattern(rng, n_min, n_max)
+    if pattern is None:
+        pattern, params = rand_pattern, rand_params
+    n = rand_n if n is None else int(n)
+    dirs = directions(pattern, n, rng, **(params or {}))
+    points = simulate(truth, dirs, noise=noise, rng=rng).raw
+    test_raw = simulate(truth, directions("uniform", n_test, rng), noise=0.0, rng=rng).raw
+    cal: Calibration | None
+    try:
+        cal = fit(points, model=model, method=method, norm=None, loss=loss)
+        rel = np.linalg.norm(cal.apply(test_raw), axis=1) / cal.norm - 1.0
+        error = float(np.sqrt(np.mean(rel**2)))
+    except MargCalError as exc:
+        log.debug("set %d (%s, n=%d): fit failed: %s", index, pattern, n, exc)
+        cal, error = None, FAILED_ERROR
+    if not math.isfinite(error) or error > FAILED_ERROR:
+        error = FAILED_ERROR
+    center, radius = _indicator_frame(points)
+    ind = compute_indicators(points, center, radius)
+    extra = {"e_info": information_indicator(points, center, radius)}
+    feats = np.array([extra[name] if name in extra else float(getattr(ind, name)) for name in FEATURES])
+    if cal is not None:
+        base = baseline_scores(points, cal)
+        bvals = np.array([base[name] for name in BASELINES])
+    else:
+        bvals = np.array([np.nan] * len(BASELINES))
+    return {"features": feats, "error": error, "baselines": bvals, "pattern": pattern, "kind": kind,
+            "n_points": n, "noise": noise, "points": points, "fit": cal, "params": params or {}}
+
+
+# -- many sets -------------------------------------------------------------------------------------
+
+
+def _worst_baselines(values: Array) -> Array:
+    """Fill the baseline scores of failed fits with each baseline's worst value in the corpus."""
+    out = values.copy()
+    for j, name in enumerate(BASELINES):
+        col = out[:, j]
+        bad = ~np.isfinite(col)
+        if bad.any():
+            finite = col[~bad]
+            if BASELINES[name].higher_is_better:
+                col[bad] = finite.min() if finite.size else 0.0
+            else:
+                col[bad] = finite.max() if finite.size else 1e12
+    return out
+
+
+def build_corpus(n_sets: int, seed: int = 0, *, progress: bool | TextIO = False, **options: Any) -> Corpus:
+    """Simulate ``n_sets`` labelled calibration sets (``make_set`` for ``index = 0 .. n_sets-1``).
+
+    Args:
+        n_sets: number of sets (>= 2, so both groups of the swap are populated).
+        seed: corpus seed.
+        progress: True (stderr) or a stream to show a ``\\r`` counter on.
+        **options: passed on to ``make_set`` (n_min, n_max, noise_range, n_test, model, method).
+    """
+    if n_sets < 2:
+        msg = f"n_sets must be >= 2, got {n_sets}"
+        raise ConfigError(msg)
+    stream = sys.stderr if progress is True else (progress or None)
+    rows = []
+    t0 = time.monotonic()
+    for i in range(n_sets):
+        rows.append(make_set(seed, i, **options))
+        if stream is not None and (i + 1 == n_sets or (i + 1) % 25 == 0):
+            print(f"\rcorpus: {i + 1}/{n_sets} sets, {time.monotonic() - t0:.0f} s", end="", file=stream, flush=True)
+    if stream is not None:
+        print(file=stream)
+    n_failed = sum(r["fit"] is None for r in rows)
+    meta = {"seed": seed, "n_sets": n_sets, "n_failed": n_failed, **options}
+    log.info("corpus of %d sets (seed %d): %d fits failed", n_sets, seed, n_failed)
+    return Corpus(
+        features=np.array([r["features"] for r in rows]),
+        error=np.array([r["error"] for r in rows]),
+        baselines=_worst_baselines(np.array([r["baselines"] for r in rows])),
+        pattern=np.array([r["pattern"] for r in rows]),
+        kind=np.array([r["kind"] for r in rows]),
+        n_points=np.array([r["n_points"] for r in rows], dtype=np.int64),
+        noise=np.array([r["noise"] for r in rows]),
+        group=np.arange(n_sets, dtype=np.int64) % 2,
+        meta=meta,
+    )

@@ -1,0 +1,836 @@
+"""Bounded per-direction calibration buffer and the coverage indicators A–D.
+
+Directions are taken about the current centre estimate ``c`` (raw data lie on an offset ellipsoid),
+``d = v - c``, with elevation ``theta = atan2(d_z, hypot(d_x, d_y))`` in [-90, 90] deg and azimuth
+``phi = atan2(d_y, d_x)`` in [-180, 180] deg.
+
+The buffer splits the sphere of directions into equal-area bins: ``n_bands`` bands of equal height
+in ``z = d_z / |d|`` (Archimedes: equal height means equal area) times ``n_sectors`` azimuth sectors.
+Each bin holds at most ``per_bin`` samples (Gietzelt et al. 2013, §2.4: "only up to ten measurements
+of a certain direction"), the newest replacing the oldest, so the buffer follows a drifting sensor
+while its memory stays bounded by ``n_bins * per_bin`` samples whatever the stream length. A bin
+takes a new sample at most once per ``min_interval_s`` seconds, so most samples of a dense stream are
+refused after a handful of float operations.
+
+Indicators (Olivares et al. 2013, §3.1, Eqs. 9–12 counting the paper's displayed equations), over the
+buffered points G:
+
+- A = (Q3(theta) - Q1(theta)) + (Q3(phi) - Q1(phi)), degrees, in [0, 540]              (Eq. 9)
+- B = #{empty bins of the theta histogram} + #{empty bins of the phi histogram}        (Eq. 10)
+  (``hist_bins`` equal-width bins each over [-90, 90] and [-180, 180]; the paper's N = 1024 came
+  from its 10-bit ADC; the default here, 36, suits a buffer of a few hundred points)
+- C = sum over axes k of (max(g_k) - min(g_k)), raw units                               (Eq. 11)
+- D = V(Qhull(G)), the convex-hull volume, raw units cubed                              (Eq. 12)
+
+and their unit-free versions, so one trained validator serves any sensor and unit:
+``b_frac = B / (2 hist_bins)``, ``c_norm = C / (6 r)``, ``d_norm = D / (4/3 pi r^3)`` with ``r`` the
+fitted radius (or, before a fit, the mean distance of the points from the centre).
+
+The buffer updates the indicators on every insert and evict instead of recomputing them: sorted lists
+give the quartiles (A) and the per-axis extremes (C), bin counts give B, and an incremental hull
+(:class:`IncrementalHull`) gives D. :func:`compute_indicators` is the from-scratch reference.
+"""
+
+from __future__ import annotations
+
+import bisect
+import logging
+import math
+from collections import deque
+from dataclasses import asdict, dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial import ConvexHull, QhullError
+
+from .errors import ConfigError, InputError, as_points, as_vector3
+
+__all__ = ["HIST_BINS", "DirectionBuffer", "Indicators", "compute_indicators"]
+
+_log = logging.getLogger(__name__)
+
+HIST_BINS = 36
+"""Default number of histogram bins for theta and for phi (indicator B)."""
+
+_RAD2DEG = 180.0 / math.pi
+_TWO_PI = 2.0 * math.pi
+_SPHERE = 4.0 / 3.0 * math.pi
+
+Array = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class Indicators:
+    """Coverage indicators of one set of calibration points (Olivares et al. 2013, §3.1).
+
+    Attributes:
+        A: IQR of theta plus IQR of phi, degrees.
+        B: Empty bins of the theta and phi histograms (count).
+        C: Sum of per-axis extents, raw units.
+        D: Convex-hull volume, raw units cubed (0 with fewer than 4 or coplanar points).
+        b_frac: ``B / (2 hist_bins)``, in [0, 1].
+        c_norm: ``C / (6 r)``, about 1 for full coverage of a sphere of radius r.
+        d_norm: ``D / (4/3 pi r^3)``, below 1, approaching 1 for dense full coverage.
+        n_points: Number of points.
+        radius: The radius r used for normalisation.
+    """
+
+    A: float
+    B: int
+    C: float
+    D: float
+    b_frac: float
+    c_norm: float
+    d_norm: float
+    n_points: int = 0
+    radius: float = 0.0
+
+    def as_dict(self) -> dict[str, float]:
+        """Return the indicators as a flat dict (for status messages and JSON)."""
+        return {k: float(v) for k, v in asdict(self).items()}
+
+
+def _hist_scale(hist_bins: int) -> tuple[float, float]:
+    return hist_bins / 180.0, hist_bins / 360.0
+
+
+def _quartile_spread(s: list[float]) -> float:
+    """Q3 - Q1 of a sorted list with numpy's default (linear) percentile interpolation."""
+    n = len(s)
+    if n < 2:
+        return 0.0
+    return _percentile(s, 0.75) - _percentile(s, 0.25)
+
+
+def _percentile(s: list[float], q: float) -> float:
+    h = (len(s) - 1) * q
+    lo = int(h)
+    frac = h - lo
+    if frac == 0.0:
+        return s[lo]
+    a, b = s[lo], s[lo + 1]
+    return a + (b - a) * frac if frac < 0.5 else b - (b - a) * (1.0 - frac)
+
+
+def _normalise(a: float, b: int, c: float, d: float, n: int, radius: float, hist_bins: int) -> Indicators:
+    r = radius if radius > 0.0 else float("nan")
+    return Indicators(
+        A=a,
+        B=b,
+        C=c,
+        D=d,
+        b_frac=b / (2.0 * hist_bins),
+        c_norm=c / (6.0 * r),
+        d_norm=d / (_SPHERE * r**3),
+        n_points=n,
+        radius=radius,
+    )
+
+
+def compute_indicators(
+    points: ArrayLike, center: ArrayLike | None = None, radius: float | None = None, *, hist_bins: int = HIST_BINS
+) -> Indicators:
+    """Compute indicators A–D from scratch (the batch reference for :class:`DirectionBuffer`).
+
+    Args:
+        points: (n, 3) raw samples, n >= 1.
+        center: Centre estimate the directions are taken about; the origin when None.
+        radius: Radius for the normalised indicators; the mean distance from ``center`` when None.
+        hist_bins: Number of histogram bins for theta and for phi (indicator B).
+
+    Returns:
+        The indicators.
+
+    Raises:
+        InputError: On a bad shape, non-finite values or a non-positive radius.
+    """
+    p = as_points(points, "points")
+    c = np.zeros(3) if center is None else as_vector3(center, "center")
+    if hist_bins < 1:
+        msg = f"hist_bins must be >= 1, got {hist_bins}"
+        raise InputError(msg)
+    d = p - c
+    if radius is None:
+        radius = float(np.mean(np.sqrt(np.einsum("ij,ij->i", d, d))))
+    elif not (math.isfinite(radius) and radius > 0.0):
+        msg = f"radius must be a positive finite number, got {radius!r}"
+        raise InputError(msg)
+    theta = np.arctan2(d[:, 2], np.hypot(d[:, 0], d[:, 1])) * _RAD2DEG
+    phi = np.arctan2(d[:, 1], d[:, 0]) * _RAD2DEG
+    q_t = np.percentile(theta, [25.0, 75.0])
+    q_p = np.percentile(phi, [25.0, 75.0])
+    a = float((q_t[1] - q_t[0]) + (q_p[1] - q_p[0]))  # Eq. 9
+    st, sp = _hist_scale(hist_bins)
+    it = np.clip(((theta + 90.0) * st).astype(np.intp), 0, hist_bins - 1)
+    ip = np.clip(((phi + 180.0) * sp).astype(np.intp), 0, hist_bins - 1)
+    b = int(hist_bins - np.unique(it).size + hist_bins - np.unique(ip).size)  # Eq. 10
+    c_ind = float(np.sum(p.max(axis=0) - p.min(axis=0)))  # Eq. 11
+    d_ind = 0.0  # Eq. 12
+    if p.shape[0] >= 4:
+        try:
+            d_ind = float(ConvexHull(p).volume)
+        except QhullError:
+            d_ind = 0.0
+    return _normalise(a, b, c_ind, d_ind, p.shape[0], float(radius), hist_bins)
+
+
+_REBUILD_EVERY = 4000
+"""Full Qhull rebuild after this many local hull changes, bounding floating-point drift of the volume."""
+
+
+def _single_cycle(nxt: dict[int, int]) -> bool:
+    """True if the successor map ``nxt`` is one simple cycle through all of its keys."""
+    if len(nxt) < 3 or len(set(nxt.values())) != len(nxt):
+        return False
+    start = next(iter(nxt))
+    v = start
+    for steps in range(1, len(nxt) + 1):
+        nv = nxt.get(v)
+        if nv is None:
+            return False
+        v = nv
+        if v == start:
+            return steps == len(nxt)
+    return False
+
+
+def _boundary(tris: list[tuple[int, int, int]]) -> set[tuple[int, int]]:
+    """Directed edges of oriented triangles whose reverse is not in the set (the boundary of a disc)."""
+    edges = {e for a, b, c in tris for e in ((a, b), (b, c), (c, a))}
+    return {(u, w) for (u, w) in edges if (w, u) not in edges}
+
+
+def _cross(a: Array, b: Array) -> Array:
+    """Row-wise cross product (np.cross is slow for small arrays)."""
+    return np.stack(
+        (a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2], a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]),
+        axis=1,
+    )
+
+
+class IncrementalHull:
+    """Convex-hull volume (indicator D) of a changing point set, updated locally.
+
+    Points are slots of a shared (capacity, 3) array, mirrored in three float lists for scalar
+    access. Facets are triangles oriented counter-clockwise seen from outside, with unit outward
+    normals ``n`` and offsets ``o`` (``x`` is beyond a facet when ``n . x + o > eps``).
+
+    - Insert p (beneath-beyond): the facets visible from p are replaced by the cone from p over their
+      horizon; the volume grows by the tetrahedra (p, visible facet), ``area * height / 3`` each.
+    - Delete a hull vertex v: let L be its link (the neighbours, a cycle) and Q the non-vertex points
+      in the cap cut off by the plane through L (normal: the sum of the star normals). Every vertex
+      of the new hull's facets that v sees (the floor) lies in L ∪ Q, so the floor is exactly the set
+      of facets of ``conv(L ∪ Q)`` visible from v, and its boundary is the link. The star of v is
+      replaced by that floor; the volume shrinks by the tetrahedra (v, floor facet). The floor comes
+      from Qhull on the few points of L ∪ Q (a triangle when L has three points and Q is empty).
+      Deleting a non-vertex changes nothing.
+
+    Consistency checks (horizon and link simple cycles, floor boundary equal to the link, the points'
+    mean beneath every new facet) fall back to a full Qhull rebuild, as does every
+    ``_REBUILD_EVERY``-th change and any Qhull error. Fewer than 4 or coplanar points give volume 0.
+    """
+
+    def __init__(self, pts: Array, xs: list[float], ys: list[float], zs: list[float]) -> None:
+        self._pts = pts
+        self._xyz = (xs, ys, zs)
+        self.rebuilds = 0
+        self.clear()
+
+    def clear(self) -> None:
+        """Forget every point."""
+        self.volume = 0.0
+        self._live: set[int] = set()
+        self._inner: set[int] = set()
+        self._inner_mask = np.zeros(self._pts.shape[0], dtype=bool)
+        self._vf: dict[int, set[int]] = {}
+        self._tri: list[tuple[int, int, int] | None] = []
+        self._eq = np.zeros((0, 4))
+        self._area = np.zeros(0)
+        self._free_rows: list[int] = []
+        self._hw = 0
+        self._valid = False
+        self._suspended = False
+        self._changes = 0
+        self._eps = 0.0
+
+    def set_lists(self, xs: list[float], ys: list[float], zs: list[float]) -> None:
+        """Point the scalar mirrors at new lists (the buffer re-creates them on clear)."""
+        self._xyz = (xs, ys, zs)
+
+    def suspend(self) -> None:
+        """Only record membership until :meth:`resume` (bulk loading)."""
+        self._suspended = True
+
+    def resume(self) -> None:
+        """Rebuild from scratch after a bulk load."""
+        self._suspended = False
+        self._rebuild()
+
+    def vertex_count(self) -> int:
+        """Number of hull vertices (0 when the hull is degenerate)."""
+        return len(self._vf) if self._valid else 0
+
+    def _set_inner(self, slot: int, inner: bool) -> None:
+        if inner:
+            self._inner.add(slot)
+        else:
+            self._inner.discard(slot)
+        self._inner_mask[slot] = inner
+
+    # ------------------------------------------------------------------ full rebuild
+    def _rebuild(self) -> None:
+        self.rebuilds += 1
+        self._changes = 0
+        self._valid = False
+        self.volume = 0.0
+        self._vf = {}
+        self._tri = []
+        self._free_rows = []
+        self._hw = 0
+        self._inner = set(self._live)
+        self._inner_mask[:] = False
+        live = np.fromiter(self._live, dtype=np.intp, count=len(self._live))
+        self._inner_mask[live] = True
+        if live.size < 4:
+            return
+        p = self._pts[live]
+        try:
+            h = ConvexHull(p)
+        except QhullError:
+            return
+        simp = live[h.simplices]
+        eq = h.equations
+        a, b, c = self._pts[simp[:, 0]], self._pts[simp[:, 1]], self._pts[simp[:, 2]]
+        cr = _cross(b - a, c - a)
+        flip = np.einsum("ij,ij->i", cr, eq[:, :3]) < 0.0
+        simp[flip] = simp[flip][:, [0, 2, 1]]
+        m = simp.shape[0]
+        cap = max(64, 2 * m)
+        self._eq = np.zeros((cap, 4))
+        self._eq[:, 3] = -math.inf
+        self._eq[:m] = eq
+        self._area = np.zeros(cap)
+        self._area[:m] = 0.5 * np.sqrt(np.einsum("ij,ij->i", cr, cr))
+        self._tri = [(int(i), int(j), int(k)) for i, j, k in simp.tolist()]
+        self._tri += [None] * (cap - m)
+        self._free_rows = list(range(cap - 1, m - 1, -1))
+        self._hw = m
+        vf = self._vf
+        for f, (i, j, k) in enumerate(self._tri[:m]):  # type: ignore[misc]
+            for v in (i, j, k):
+                vf.setdefault(v, set()).add(f)
+        for v in vf:
+            self._set_inner(v, False)
+        self.volume = float(h.volume)
+        self._eps = 1e-12 * float(np.abs(p).max())
+        self._valid = True
+
+    # ------------------------------------------------------------------ facet bookkeeping
+    def _alloc(self, k: int) -> list[int]:
+        while len(self._free_rows) < k:
+            cap = self._eq.shape[0]
+            new = max(64, cap)
+            self._eq = np.vstack([self._eq, np.tile([0.0, 0.0, 0.0, -math.inf], (new, 1))])
+            self._area = np.concatenate([self._area, np.zeros(new)])
+            self._tri += [None] * new
+            self._free_rows = list(range(cap + new - 1, cap - 1, -1)) + self._free_rows
+        rows = [self._free_rows.pop() for _ in range(k)]
+        self._hw = max(self._hw, max(rows) + 1)
+        return rows
+
+    def _facets(self, tris: list[tuple[int, int, int]], ref: tuple[float, float, float]) -> list[tuple[float, ...]] | None:
+        """(nx, ny, nz, offset, area) of oriented triangles; None if one is degenerate or ``ref`` is beyond it."""
+        xs, ys, zs = self._xyz
+        rx, ry, rz = ref
+        eps = self._eps
+        out = []
+        for a, b, c in tris:
+            ax, ay, az = xs[a], ys[a], zs[a]
+            ux, uy, uz = xs[b] - ax, ys[b] - ay, zs[b] - az
+            vx, vy, vz = xs[c] - ax, ys[c] - ay, zs[c] - az
+            nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+            nrm = math.sqrt(nx * nx + ny * ny + nz * nz)
+            if not nrm > 0.0:
+                return None
+            nx, ny, nz = nx / nrm, ny / nrm, nz / nrm
+            off = -(nx * ax + ny * ay + nz * az)
+            if nx * rx + ny * ry + nz * rz + off > eps:
+                return None
+            out.append((nx, ny, nz, off, 0.5 * nrm))
+        return out
+
+    def _replace(self, old: list[int], tris: list[tuple[int, int, int]], fac: list[tuple[float, ...]]) -> None:
+        touched: set[int] = set()
+        tri, vf = self._tri, self._vf
+        for f in old:
+            for v in tri[f]:  # type: ignore[union-attr]
+                s = vf.get(v)
+                if s is not None:
+                    s.discard(f)
+                    touched.add(v)
+            tri[f] = None
+            self._free_rows.append(f)
+        self._eq[old] = (0.0, 0.0, 0.0, -math.inf)
+        self._area[old] = 0.0
+        rows = self._alloc(len(tris))
+        arr = np.array(fac)
+        self._eq[rows] = arr[:, :4]
+        self._area[rows] = arr[:, 4]
+        for row, t in zip(rows, tris, strict=True):
+            tri[row] = t
+            for v in t:
+                s = vf.get(v)
+                if s is None:
+                    vf[v] = {row}
+                    self._set_inner(v, False)
+                else:
+                    s.add(row)
+        for v in touched:
+            if not vf.get(v, True):
+                del vf[v]
+                if v in self._live:
+                    self._set_inner(v, True)
+        self._changes += 1
+
+    # ------------------------------------------------------------------ updates
+    def insert(self, slot: int, ref: tuple[float, float, float]) -> None:
+        """Add point ``slot``; ``ref`` is a point strictly inside the new hull (the points' mean)."""
+        self._live.add(slot)
+        if self._suspended:
+            return
+        if not self._valid or self._changes >= _REBUILD_EVERY:
+            self._rebuild()
+            return
+        p = self._pts[slot]
+        eq = self._eq[: self._hw]
+        d = eq[:, :3] @ p + eq[:, 3]
+        vis = np.flatnonzero(d > self._eps)
+        if vis.size == 0:
+            self._set_inner(slot, True)
+            return
+        vis_l = vis.tolist()
+        tri = self._tri
+        horizon = list(_boundary([tri[f] for f in vis_l]))  # type: ignore[misc]
+        nxt = dict(horizon)
+        if len(nxt) != len(horizon) or not _single_cycle(nxt):
+            self._rebuild()
+            return
+        tris = [(u, w, slot) for u, w in horizon]
+        fac = self._facets(tris, ref)
+        if fac is None:
+            self._rebuild()
+            return
+        self.volume += float(self._area[vis] @ d[vis]) / 3.0
+        self._replace(vis_l, tris, fac)
+
+    def delete(self, slot: int, ref: tuple[float, float, float]) -> None:
+        """Remove point ``slot``; ``ref`` is a point strictly inside the remaining hull."""
+        self._live.discard(slot)
+        if self._suspended:
+            return
+        if self._valid and slot in self._inner:
+            self._set_inner(slot, False)
+            return
+        self._inner_mask[slot] = False
+        if not self._valid or self._changes >= _REBUILD_EVERY or len(self._live) < 4:
+            self._rebuild()
+            return
+        star = list(self._vf.get(slot, ()))
+        link: dict[int, int] = {}
+        for f in star:
+            a, b, c = self._tri[f]  # type: ignore[misc]
+            u, w = (b, c) if a == slot else (c, a) if b == slot else (a, b)
+            link[u] = w
+        if len(link) != len(star) or not _single_cycle(link):
+            self._rebuild()
+            return
+        ring = [next(iter(link))]
+        while len(ring) < len(link):
+            ring.append(link[ring[-1]])
+        nc = self._eq[star, :3].sum(axis=0)
+        cut = float((self._pts[ring] @ nc).min()) - self._eps * float(np.abs(nc).sum())
+        cand: list[int] = []
+        if self._inner:  # superset of the non-vertices inside conv(L ∪ v): a slab, then a ball
+            q = np.flatnonzero(self._inner_mask & (self._pts @ nc >= cut))
+            if q.size:
+                lv = self._pts[[*ring, slot]]
+                mid = lv.mean(axis=0)
+                rad2 = (math.sqrt(float(((lv - mid) ** 2).sum(axis=1).max())) * (1.0 + 1e-9) + self._eps) ** 2
+                cand = q[((self._pts[q] - mid) ** 2).sum(axis=1) <= rad2].tolist()
+        tris = self._floor(slot, ring, cand)
+        if tris is None or _boundary(tris) != set(link.items()):
+            self._rebuild()
+            return
+        fac = self._facets(tris, ref)
+        if fac is None:
+            self._rebuild()
+            return
+        xs, ys, zs = self._xyz
+        vx, vy, vz = xs[slot], ys[slot], zs[slot]
+        heights = [nx * vx + ny * vy + nz * vz + off for nx, ny, nz, off, _ in fac]
+        if min(heights) <= 0.0:
+            self._rebuild()
+            return
+        del self._vf[slot]
+        self.volume -= sum(h * f[4] for h, f in zip(heights, fac, strict=True)) / 3.0
+        self._replace(star, tris, fac)
+
+    def _floor(self, slot: int, ring: list[int], cand: list[int]) -> list[tuple[int, int, int]] | None:
+        """Oriented facets of conv(ring ∪ cand) that ``slot`` sees; None when that cannot be decided."""
+        cs = ring + cand
+        m = len(cs)
+        v = self._pts[slot]
+        if m == 3:  # ring is in cycle order: the single floor triangle follows it
+            return [(ring[0], ring[1], ring[2])]
+        pts = self._pts[cs]
+        try:
+            h = ConvexHull(pts)
+        except QhullError:
+            return None
+        dv = h.equations[:, :3] @ v + h.equations[:, 3]
+        fl = np.flatnonzero(dv > self._eps)
+        simp = np.asarray(cs)[h.simplices[fl]]
+        a, b, c3 = self._pts[simp[:, 0]], self._pts[simp[:, 1]], self._pts[simp[:, 2]]
+        flip = np.einsum("ij,ij->i", _cross(b - a, c3 - a), h.equations[fl, :3]) < 0.0
+        simp[flip] = simp[flip][:, [0, 2, 1]]
+        return [(int(x), int(y), int(z)) for x, y, z in simp.tolist()]
+
+
+def _grid(n_bins: int) -> tuple[int, int]:
+    """Bands and sectors for about ``n_bins`` equal-area bins of roughly square shape at the equator."""
+    n_bands = max(1, round(math.sqrt(n_bins / math.pi)))
+    return n_bands, max(1, round(n_bins / n_bands))
+
+
+class DirectionBuffer:
+    """Bounded buffer of samples, at most ``per_bin`` per equal-area direction bin, with live indicators.
+
+    Args:
+        n_bins: Approximate number of direction bins (the grid is ``n_bands x n_sectors``, see
+            ``n_bins`` attribute for the exact count).
+        per_bin: Maximum samples per bin (K); the newest replaces the oldest.
+        center: Initial centre estimate (raw units); the origin when None.
+        radius: Radius for the normalised indicators; the mean distance from the centre when None.
+        min_interval_s: A bin accepts a new sample only if its newest one is at least this many
+            seconds older (or newer: stamps that jump back by more than this are accepted).
+        hist_bins: Histogram bins for indicator B.
+    """
+
+    def __init__(
+        self,
+        n_bins: int = 100,
+        per_bin: int = 10,
+        center: ArrayLike | None = None,
+        *,
+        radius: float | None = None,
+        min_interval_s: float = 0.5,
+        hist_bins: int = HIST_BINS,
+    ) -> None:
+        if not (isinstance(n_bins, int) and 1 <= n_bins <= 100_000):
+            msg = f"n_bins must be an int in [1, 100000], got {n_bins!r}"
+            raise ConfigError(msg)
+        if not (isinstance(per_bin, int) and 1 <= per_bin <= 10_000):
+            msg = f"per_bin must be an int in [1, 10000], got {per_bin!r}"
+            raise ConfigError(msg)
+        if not (math.isfinite(min_interval_s) and min_interval_s >= 0.0):
+            msg = f"min_interval_s must be finite and >= 0, got {min_interval_s!r}"
+            raise ConfigError(msg)
+        if not (isinstance(hist_bins, int) and hist_bins >= 1):
+            msg = f"hist_bins must be an int >= 1, got {hist_bins!r}"
+            raise ConfigError(msg)
+        self.n_bands, self.n_sectors = _grid(n_bins)
+        self.n_bins = self.n_bands * self.n_sectors
+        self.per_bin = per_bin
+        self.capacity = self.n_bins * per_bin
+        self.min_interval_s = float(min_interval_s)
+        self.hist_bins = hist_bins
+        self._hscale = _hist_scale(hist_bins)
+        self._center = (0.0, 0.0, 0.0)
+        self._radius: float | None = None
+        self._pts = np.zeros((self.capacity, 3))
+        self._hull = IncrementalHull(self._pts, [], [], [])
+        self.clear()
+        if center is not None or radius is not None:
+            self.set_center(np.zeros(3) if center is None else center, radius)
+
+    # ------------------------------------------------------------------ state
+    def clear(self) -> None:
+        """Drop every sample and reset the counters (the centre and radius are kept)."""
+        cap = self.capacity
+        self._x = [0.0] * cap
+        self._y = [0.0] * cap
+        self._z = [0.0] * cap
+        self._t = [0.0] * cap
+        self._th = [0.0] * cap
+        self._ph = [0.0] * cap
+        self._seq = [0] * cap
+        self._next_seq = 0
+        self._free = list(range(cap - 1, -1, -1))
+        self._bins: list[deque[int]] = [deque() for _ in range(self.n_bins)]
+        self._last = [-math.inf] * self.n_bins
+        self._s_th: list[float] = []
+        self._s_ph: list[float] = []
+        self._s_xyz: tuple[list[float], list[float], list[float]] = ([], [], [])
+        self._h_th = [0] * self.hist_bins
+        self._h_ph = [0] * self.hist_bins
+        self._empty = 2 * self.hist_bins
+        self._sum_r = 0.0
+        self._sum_p = [0.0, 0.0, 0.0]
+        self._n_occupied = 0
+        self._hull.clear()
+        self._hull.set_lists(self._x, self._y, self._z)
+        self._cache: Indicators | None = None
+        self._offered = self._kept = self._refused = self._invalid = self._evicted = 0
+        self._rebins = 0
+
+    def __len__(self) -> int:
+        return self.capacity - len(self._free)
+
+    @property
+    def center(self) -> Array:
+        """The centre estimate the directions are taken about."""
+        return np.array(self._center)
+
+    @property
+    def radius(self) -> float | None:
+        """The radius set with :meth:`set_center`, or None."""
+        return self._radius
+
+    def coverage(self) -> float:
+        """Fraction of direction bins holding at least one sample."""
+        return self._n_occupied / self.n_bins
+
+    def stats(self) -> dict[str, int]:
+        """Counters: offered, kept, refused (bin too recent or at the centre), invalid (non-finite or bad
+        shape), evicted, rebins (centre moves), hull_rebuilds (full Qhull runs), hull_vertices."""
+        return {
+            "offered": self._offered,
+            "kept": self._kept,
+            "refused": self._refused,
+            "invalid": self._invalid,
+            "evicted": self._evicted,
+            "rebins": self._rebins,
+            "hull_rebuilds": self._hull.rebuilds,
+            "hull_vertices": self._hull.vertex_count(),
+        }
+
+    @property
+    def counters(self) -> dict[str, int]:
+        """The same as :meth:`stats` (named like ``InactivityGate.counters``)."""
+        return self.stats()
+
+    def _live(self) -> list[int]:
+        free = set(self._free)
+        live = [s for s in range(self.capacity) if s not in free]
+        live.sort(key=self._seq.__getitem__)
+        return live
+
+    def points(self) -> Array:
+        """Buffered samples, (n, 3), oldest insertion first."""
+        return self._pts[self._live()].copy()
+
+    def times(self) -> Array:
+        """Stamps of the buffered samples, (n,), in the order of :meth:`points`."""
+        return np.array([self._t[s] for s in self._live()], dtype=np.float64)
+
+    def bin_of(self, xyz: ArrayLike) -> int:
+        """Index in ``[0, n_bins)`` of the direction bin of raw sample ``xyz`` about the current centre.
+
+        Raises:
+            InputError: If ``xyz`` is not three finite numbers or lies at the centre.
+        """
+        v = as_vector3(xyz, "xyz")
+        cx, cy, cz = self._center
+        dx, dy, dz = float(v[0]) - cx, float(v[1]) - cy, float(v[2]) - cz
+        r = math.sqrt(dx * dx + dy * dy + dz * dz)
+        if r == 0.0:
+            msg = "xyz lies at the centre estimate: it has no direction"
+            raise InputError(msg)
+        return self._bin_of(dx, dy, dz, r)
+
+    def bin_counts(self) -> list[int]:
+        """Number of samples in each direction bin."""
+        return [len(q) for q in self._bins]
+
+    # ------------------------------------------------------------------ streaming path
+    def _bin_of(self, dx: float, dy: float, dz: float, r: float) -> int:
+        band = int((dz / r + 1.0) * 0.5 * self.n_bands)
+        if band >= self.n_bands:
+            band = self.n_bands - 1
+        sector = int((math.atan2(dy, dx) + math.pi) * (self.n_sectors / _TWO_PI))
+        if sector >= self.n_sectors:
+            sector = self.n_sectors - 1
+        return band * self.n_sectors + (sector if sector >= 0 else 0)
+
+    def push(self, t: float, xyz: ArrayLike) -> bool:
+        """Offer one sample; return True if it was kept.
+
+        Never raises for bad samples: non-finite values or a wrong shape are counted as invalid, a
+        sample at the centre or in a bin that took one less than ``min_interval_s`` ago is refused.
+        """
+        self._offered += 1
+        try:
+            x = float(xyz[0])  # type: ignore[index]
+            y = float(xyz[1])  # type: ignore[index]
+            z = float(xyz[2])  # type: ignore[index]
+            t = float(t)
+        except (TypeError, ValueError, IndexError):
+            self._invalid += 1
+            return False
+        s = x + y + z + t
+        if s - s != 0.0:  # NaN or Inf somewhere
+            self._invalid += 1
+            return False
+        cx, cy, cz = self._center
+        dx, dy, dz = x - cx, y - cy, z - cz
+        r = math.sqrt(dx * dx + dy * dy + dz * dz)
+        if r == 0.0:
+            self._refused += 1
+            return False
+        b = self._bin_of(dx, dy, dz, r)
+        if abs(t - self._last[b]) < self.min_interval_s:
+            self._refused += 1
+            return False
+        self._last[b] = t
+        q = self._bins[b]
+        if len(q) >= self.per_bin:
+            self._remove(q.popleft())
+            self._evicted += 1
+        elif not q:
+            self._n_occupied += 1
+        slot = self._free.pop()
+        q.append(slot)
+        self._insert(slot, t, x, y, z, dx, dy, dz, r)
+        self._kept += 1
+        return True
+
+    # ------------------------------------------------------------------ incremental indicators
+    def _insert(self, slot: int, t: float, x: float, y: float, z: float, dx: float, dy: float, dz: float, r: float) -> None:
+        self._x[slot], self._y[slot], self._z[slot], self._t[slot] = x, y, z, t
+        self._seq[slot] = self._next_seq
+        self._next_seq += 1
+        pts = self._pts
+        pts[slot, 0] = x
+        pts[slot, 1] = y
+        pts[slot, 2] = z
+        th = math.atan2(dz, math.hypot(dx, dy)) * _RAD2DEG
+        ph = math.atan2(dy, dx) * _RAD2DEG
+        self._th[slot], self._ph[slot] = th, ph
+        bisect.insort(self._s_th, th)
+        bisect.insort(self._s_ph, ph)
+        sx, sy, sz = self._s_xyz
+        bisect.insort(sx, x)
+        bisect.insort(sy, y)
+        bisect.insort(sz, z)
+        self._hist_add(th, ph, 1)
+        self._sum_r += r
+        sp = self._sum_p
+        sp[0] += x
+        sp[1] += y
+        sp[2] += z
+        self._hull.insert(slot, self._mean())
+        self._cache = None
+
+    def _remove(self, slot: int) -> None:
+        _discard(self._s_th, self._th[slot])
+        _discard(self._s_ph, self._ph[slot])
+        sx, sy, sz = self._s_xyz
+        x, y, z = self._x[slot], self._y[slot], self._z[slot]
+        _discard(sx, x)
+        _discard(sy, y)
+        _discard(sz, z)
+        self._hist_add(self._th[slot], self._ph[slot], -1)
+        cx, cy, cz = self._center
+        self._sum_r -= math.sqrt((x - cx) ** 2 + (y - cy) ** 2 + (z - cz) ** 2)
+        sp = self._sum_p
+        sp[0] -= x
+        sp[1] -= y
+        sp[2] -= z
+        self._free.append(slot)
+        self._hull.delete(slot, self._mean())
+        self._cache = None
+
+    def _mean(self) -> tuple[float, float, float]:
+        n = len(self)
+        if n == 0:
+            return (0.0, 0.0, 0.0)
+        sp = self._sum_p
+        return (sp[0] / n, sp[1] / n, sp[2] / n)
+
+    def _hist_add(self, th: float, ph: float, inc: int) -> None:
+        st, sp = self._hscale
+        nb = self.hist_bins
+        i = min(max(int((th + 90.0) * st), 0), nb - 1)
+        j = min(max(int((ph + 180.0) * sp), 0), nb - 1)
+        for h, k in ((self._h_th, i), (self._h_ph, j)):
+            before = h[k]
+            h[k] = before + inc
+            if before == 0:
+                self._empty -= 1
+            elif h[k] == 0:
+                self._empty += 1
+
+    def indicators(self) -> Indicators:
+        """Current indicators A–D and their normalised versions (cached until the buffer changes)."""
+        if self._cache is not None:
+            return self._cache
+        n = len(self)
+        if n == 0:
+            radius = self._radius or 0.0
+            return _normalise(0.0, 2 * self.hist_bins, 0.0, 0.0, 0, radius, self.hist_bins)
+        a = _quartile_spread(self._s_th) + _quartile_spread(self._s_ph)
+        c = sum(s[-1] - s[0] for s in self._s_xyz)
+        radius = self._radius if self._radius is not None else self._sum_r / n
+        self._cache = _normalise(a, self._empty, c, self._hull.volume, n, radius, self.hist_bins)
+        return self._cache
+
+    # ------------------------------------------------------------------ re-binning
+    def set_center(self, center: ArrayLike, radius: float | None = None) -> None:
+        """Move the centre estimate (and set the normalisation radius), re-binning every sample.
+
+        Bins that overflow after the move keep their ``per_bin`` newest samples.
+
+        Raises:
+            InputError: If ``center`` is not three finite numbers or ``radius`` is not positive.
+        """
+        c = as_vector3(center, "center")
+        if radius is not None and not (math.isfinite(radius) and radius > 0.0):
+            msg = f"radius must be a positive finite number or None, got {radius!r}"
+            raise InputError(msg)
+        self._radius = None if radius is None else float(radius)
+        new_center = (float(c[0]), float(c[1]), float(c[2]))
+        self._cache = None
+        if new_center == self._center:
+            return
+        samples = [(self._t[s], self._x[s], self._y[s], self._z[s]) for s in self._live()]
+        self._center = new_center
+        counters = (self._offered, self._kept, self._refused, self._invalid, self._evicted, self._rebins + 1)
+        self.clear()
+        self._offered, self._kept, self._refused, self._invalid, self._evicted, self._rebins = counters
+        cx, cy, cz = new_center
+        by_bin: dict[int, list[tuple[float, float, float, float]]] = {}
+        for t, x, y, z in samples:
+            dx, dy, dz = x - cx, y - cy, z - cz
+            r = math.sqrt(dx * dx + dy * dy + dz * dz)
+            if r == 0.0:
+                self._evicted += 1
+                continue
+            by_bin.setdefault(self._bin_of(dx, dy, dz, r), []).append((t, x, y, z))
+        self._hull.suspend()
+        for b, items in by_bin.items():
+            self._evicted += max(0, len(items) - self.per_bin)
+            keep = items[-self.per_bin :]  # samples are in insertion order: keep the newest
+            self._n_occupied += 1
+            self._last[b] = max(item[0] for item in keep)
+            for t, x, y, z in keep:
+                slot = self._free.pop()
+                self._bins[b].append(slot)
+                dx, dy, dz = x - cx, y - cy, z - cz
+                self._insert(slot, t, x, y, z, dx, dy, dz, math.sqrt(dx * dx + dy * dy + dz * dz))
+        self._hull.resume()
+        _log.debug("re-binned %d samples about %s", len(self), new_center)
+
+
+def _discard(s: list[float], v: float) -> None:
+    i = bisect.bisect_left(s, v)
+    del s[i]

@@ -1,0 +1,38 @@
+"""Sim-to-real gap diagnosis: where the gap lies, which unmodelled effect causes it, how far it shrinks.
+
+A recording is put against its simulated twin (``twin``: same directions and timestamps, the
+simulator's baseline model) stage by stage (``stages``); every effect of the simulator's registry is
+fitted to close the gap and ranked by the share it removes (``effects``); ``core.diagnose`` decides,
+``report`` writes the JSON and HTML. ``ros_margcal.bench.diagnosis`` checks it on recordings whose
+effect is withheld.
+"""
+
+from __future__ import annotations
+
+from .core import NONE_GAP, Diagnosis, diagnose, diagnose_holdout, validator_downstream
+from .effects import EffectFit, applicable_effects, equivalent_groups, fit_effect, rank_effects
+from .report import summary, write_report
+from .stages import STAGES, StageFeatures, rest_noise, stage_features, stage_gaps
+from .twin import Twin, build_twin
+
+__all__ = [
+    "NONE_GAP",
+    "STAGES",
+    "Diagnosis",
+    "EffectFit",
+    "StageFeatures",
+    "Twin",
+    "applicable_effects",
+    "build_twin",
+    "diagnose",
+    "diagnose_holdout",
+    "equivalent_groups",
+    "fit_effect",
+    "rank_effects",
+    "rest_noise",
+    "stage_features",
+    "stage_gaps",
+    "summary",
+    "validator_downstream",
+    "write_report",
+]

@@ -1,0 +1,277 @@
+"""One diagnosis: where the sim-to-real gap lies, which effect causes it, how far it shrinks.
+
+``diagnose(recording, sensor=...)`` builds the twin (``twin.build_twin``), measures the baseline's own
+spread over seeds, puts the recording against it stage by stage (``stages.stage_gaps``), fits every
+observable effect of the registry (``effects.rank_effects``) and decides:
+
+- ``where``: the stage with the largest gap;
+- ``cause``: ``"none"`` when the recording is within the baseline's spread (every stage gap below
+  ``NONE_GAP``), else the effect whose fitted magnitude removes the largest share of the gap — or
+  its group's name when the group holds several applicable effects (``ellipsoid_shape``: they cannot
+  be told apart, so no guess is made between them); ``"unexplained"`` when the gap is clear but no
+  effect removes ``MIN_SHRINK`` of it;
+- ``shrink``: the share of the overall gap that effect removes, and the stage gaps after it.
+
+``diagnose_holdout`` fits on the first part of a recording and measures the shrink on the rest.
+``downstream`` adds the validator's view (see ``validator_downstream``).
+"""
+
+from __future__ import annotations
+
+import inspect
+import logging
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..errors import ConfigError, MargCalError
+from .effects import EffectFit, applicable_effects, equivalent_groups, gap_with, overall_gap, rank_effects
+from .stages import stage_gaps, validator_errors
+from .twin import DEFAULT_N_FIT, Baseline, Twin, build_twin, mean_features
+
+__all__ = ["NONE_GAP", "Diagnosis", "diagnose", "diagnose_holdout", "validator_downstream"]
+
+log = logging.getLogger(__name__)
+
+Array = NDArray[np.float64]
+
+NONE_GAP = 2.5
+"""Largest stage gap (RMS of its z-scores) below which a recording is within the baseline's own spread."""
+MIN_SHRINK = 0.3
+"""Share of the gap an effect must remove to be named; a marginal gap (< 2 NONE_GAP) that no effect
+explains counts as the baseline's spread (``none``), a larger one is ``unexplained``."""
+
+
+@dataclass
+class Diagnosis:
+    """The result of ``diagnose`` (``to_dict`` gives the JSON of ``margcal diagnose``)."""
+
+    where: str
+    cause: str
+    cause_effects: list[str]
+    shrink: float
+    gap_before: float
+    gap_after: float
+    stages_before: dict[str, float]
+    stages_after: dict[str, float]
+    effects: list[EffectFit]
+    equivalent: list[dict[str, object]]
+    unobservable: list[str]
+    null_gaps: list[float]
+    sensor: str
+    n_samples: int
+    n_fit: int
+    noise: float
+    seconds: float
+    twin: Twin | None = field(default=None, repr=False)
+    baseline: Baseline | None = field(default=None, repr=False)
+    downstream: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def best(self) -> EffectFit | None:
+        """The top-ranked effect fit (None when no effect applies)."""
+        return self.effects[0] if self.effects else None
+
+    def close_calls(self, margin: float = 0.05) -> list[str]:
+        """Effects of another group whose shrink is within ``margin`` of the top one: data that barely
+        separate them (e.g. bias drift and a temperature warm-up when there is no temperature column)."""
+        best = self.best
+        if best is None or self.cause in ("none", "unexplained"):
+            return []
+        return [f.name for f in self.effects[1:] if f.group != best.group and f.shrink >= best.shrink - margin]
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain JSON-ready dict."""
+        return {
+            "where": self.where,
+            "cause": self.cause,
+            "cause_effects": self.cause_effects,
+            "shrink": self.shrink,
+            "gap_before": self.gap_before,
+            "gap_after": self.gap_after,
+            "none_gap": NONE_GAP,
+            "stages": [{"name": k, "gap": v, "gap_after": self.stages_after.get(k, v)} for k, v in self.stages_before.items()],
+            "effects": [{"name": f.name, "group": f.group, "magnitude": f.magnitude, "unit": f.unit,
+                         "gap_before": f.gap_before, "gap_after": f.gap_after, "shrink": f.shrink,
+                         "stages_after": f.stages_after} for f in self.effects],
+            "equivalent": self.equivalent,
+            "close_calls": self.close_calls(),
+            "unobservable": self.unobservable,
+            "null_gaps": self.null_gaps,
+            "sensor": self.sensor,
+            "n_samples": self.n_samples,
+            "n_fit": self.n_fit,
+            "rest_noise_fraction": self.noise,
+            "seconds": self.seconds,
+            "downstream": self.downstream,
+        }
+
+
+def _null_gaps(base: Baseline) -> list[float]:
+    """Leave-one-out gaps of each baseline seed against the others: the gaps the baseline gives itself."""
+    out = []
+    for k in range(len(base.features)):
+        others = [f for i, f in enumerate(base.features) if i != k]
+        mean, _ = mean_features(others)
+        out.append(overall_gap(stage_gaps(base.features[k].values, mean, base.sd)))
+    return out
+
+
+def _arrays(recording: Any) -> tuple[Array, Array, Array | None, str]:
+    try:
+        return recording.t, recording.raw, getattr(recording, "temp", None), str(getattr(recording, "sensor", ""))
+    except AttributeError as exc:
+        msg = f"recording must have t and raw (a simulation.Recording), got {type(recording).__name__}"
+        raise ConfigError(msg) from exc
+
+
+def diagnose(
+    recording: Any,
+    *,
+    sensor: str | None = None,
+    norm: float | None = None,
+    rest_noise: float | None = None,
+    n_fit: int = DEFAULT_N_FIT,
+    n_seeds: int = 3,
+    n_spread: int = 6,
+    validator: object | None = None,
+    progress: Callable[[int, int, str], None] | None = None,
+) -> Diagnosis:
+    """Diagnose the sim-to-real gap of one recording.
+
+    Args:
+        recording: a ``simulation.Recording`` (``io.read_recording`` gives one): ``t``, ``raw``, ``temp``.
+        sensor: "mag" or "accel" (default: the recording's own label).
+        norm: reference norm of the calibrated vector (None: estimated).
+        rest_noise: white noise std at rest in raw units (None: estimated from the recording).
+        n_fit: samples for the fitting stages.
+        n_seeds: twin seeds averaged per evaluation.
+        n_spread: baseline seeds for the spread (>= n_seeds).
+        validator: validator of the ``validator`` stage (None: the stage is skipped).
+        progress: called as ``progress(done, total, effect_name)`` after each effect.
+
+    Raises:
+        ConfigError: unknown sensor or bad option.
+        InputError, DegenerateDataError: unusable recording.
+    """
+    t0 = time.monotonic()
+    t, raw, temp, label = _arrays(recording)
+    sensor = sensor or label
+    if sensor not in ("mag", "accel"):
+        msg = f"sensor must be 'mag' or 'accel' (the recording says {label!r}); pass --sensor"
+        raise ConfigError(msg)
+    if n_seeds < 1 or n_spread < max(2, n_seeds):
+        msg = f"need n_seeds >= 1 and n_spread >= max(2, n_seeds), got {n_seeds}, {n_spread}"
+        raise ConfigError(msg)
+    twin = build_twin(t, raw, sensor=sensor, temp=temp, norm=norm, rest_noise_raw=rest_noise, n_fit=n_fit,
+                      validator=validator)
+    base = twin.spread(n_spread)
+    seeds = base.seeds[:n_seeds]
+    mean, _ = mean_features(base.features[:n_seeds])
+    before = stage_gaps(twin.features_rec.values, mean, base.sd)
+    gap_before = overall_gap(before)
+    observable, hidden = applicable_effects(sensor)
+    fits = rank_effects(twin, base, observable, seeds=seeds, progress=progress)
+    where = max(before, key=lambda k: before[k]) if before else ""
+    best = fits[0] if fits else None
+    top = max(before.values(), default=0.0)
+    members: list[str]
+    if best is None or top < NONE_GAP or best.magnitude == 0.0 or (best.shrink < MIN_SHRINK and top < 2 * NONE_GAP):
+        cause, members, shrink, after, stages_after = "none", [], 0.0, gap_before, dict(before)
+    elif best.shrink < MIN_SHRINK:
+        cause, members, shrink, after, stages_after = "unexplained", [], best.shrink, best.gap_after, best.stages_after
+    else:
+        members = sorted(e.name for e in observable if e.group == best.group)
+        cause = best.group if len(members) > 1 else best.name
+        shrink, after, stages_after = best.shrink, best.gap_after, best.stages_after
+    return Diagnosis(
+        where=where, cause=cause, cause_effects=members, shrink=shrink, gap_before=gap_before, gap_after=after,
+        stages_before=before, stages_after=stages_after, effects=fits, equivalent=equivalent_groups(observable),
+        unobservable=[e.name for e in hidden], null_gaps=_null_gaps(base), sensor=sensor, n_samples=len(t),
+        n_fit=int(twin.sub.size), noise=twin.noise, seconds=time.monotonic() - t0, twin=twin, baseline=base,
+    )
+
+
+def diagnose_holdout(recording: Any, *, split: float = 0.5, **options: Any) -> dict[str, Any]:
+    """Fit the effect on the first ``split`` of the recording (in time), measure the shrink on the rest.
+
+    Returns:
+        A dict with the diagnosis of the first part (``fit``), and for the withheld part its
+        ``gap_before``, ``gap_after`` (the first part's effect and magnitude, not refitted), ``shrink``
+        and per-stage gaps.
+    """
+    if not 0.1 <= split <= 0.9:
+        msg = f"split must be in [0.1, 0.9], got {split}"
+        raise ConfigError(msg)
+    t, raw, temp, label = _arrays(recording)
+    cut = int(np.searchsorted(t, t[0] + split * (t[-1] - t[0])))
+    part = type("Part", (), {})
+    first, second = part(), part()
+    for obj, sl in ((first, slice(0, cut)), (second, slice(cut, None))):
+        obj.t, obj.raw, obj.sensor = t[sl], raw[sl], label
+        obj.temp = None if temp is None else temp[sl]
+    d1 = diagnose(first, **options)
+    sensor = options.get("sensor") or label
+    twin2 = build_twin(second.t, second.raw, sensor=sensor, temp=second.temp, norm=options.get("norm"),
+                       rest_noise_raw=options.get("rest_noise"), n_fit=options.get("n_fit", DEFAULT_N_FIT),
+                       validator=options.get("validator"))
+    base2 = twin2.spread(options.get("n_spread", 6))
+    seeds = base2.seeds[: options.get("n_seeds", 3)]
+    before2 = stage_gaps(twin2.features_rec.values, mean_features(base2.features[: len(seeds)])[0], base2.sd)
+    gap_before2 = overall_gap(before2)
+    best = d1.best
+    if d1.cause == "none" or best is None:
+        gap_after2, after2 = gap_before2, dict(before2)
+    else:
+        gap_after2, after2 = gap_with(twin2, base2, best.name, best.magnitude, seeds)
+    return {"fit": d1, "effect": None if best is None else best.name,
+            "magnitude": 0.0 if best is None else best.magnitude,
+            "gap_before": gap_before2, "gap_after": gap_after2,
+            "shrink": 1.0 - gap_after2 / gap_before2 if gap_before2 > 0 else 0.0,
+            "stages_before": before2, "stages_after": after2}
+
+
+def validator_downstream(diag: Diagnosis, validator: object | None, *, n_sets: int = 120, seed: int = 0) -> dict[str, Any]:
+    """What the chosen effect does to the validator: predicted error before and after retraining.
+
+    The validator's prediction on a 300-sample set of the recording is compared with the measured
+    error (``stages.validator_errors``). Retraining on simulated sets *with* the effect needs
+    ``corpus.make_set`` to accept ``effects=``; when it does not, the result says so.
+    """
+    twin = diag.twin
+    if validator is None or twin is None:
+        return {"available": False, "reason": "no validator"}
+    from .. import corpus  # local: the corpus pulls in the baselines, only needed here
+
+    pts = twin.raw[twin.sub]
+    pick = np.linspace(0, len(pts) - 1, min(300, len(pts))).astype(np.intp)
+    try:
+        predicted, measured = validator_errors(pts[pick], twin.best, validator)
+    except MargCalError as exc:
+        return {"available": False, "reason": f"validator stage failed: {exc}"}
+    out: dict[str, Any] = {"predicted_before": predicted, "measured": measured}
+    best = diag.best
+    if diag.cause == "none" or best is None:
+        out.update(available=True, predicted_after=predicted, note="cause is none: no retraining")
+        return out
+    if "effects" not in inspect.signature(corpus.make_set).parameters:
+        out.update(available=False, reason="corpus.make_set has no effects= option: cannot simulate training sets "
+                   "with the effect (missing in corpus.py)")
+        return out
+    from ..validation import FuzzyValidator
+
+    built = corpus.build_corpus(n_sets, seed, effects={best.name: best.magnitude})
+    inputs = tuple(getattr(validator, "inputs", ("c_norm", "d_norm")))
+    retrained = FuzzyValidator(inputs=inputs).fit(built.matrix(list(inputs)), built.error, seed=seed)
+    predicted_after, _ = validator_errors(pts[pick], twin.best, retrained)
+    out.update(available=True, predicted_after=predicted_after,
+               error_ratio_before=measured / max(predicted, 1e-12),
+               error_ratio_after=measured / max(predicted_after, 1e-12), n_sets=n_sets,
+               log_error_before=abs(math.log10(max(measured, 1e-12) / max(predicted, 1e-12))),
+               log_error_after=abs(math.log10(max(measured, 1e-12) / max(predicted_after, 1e-12))))
+    return out

@@ -1,0 +1,189 @@
+"""The diagnosis written out: ``diagnosis.json`` for scripts, ``report.html`` (PNG plots embedded as
+base64, one self-contained file) for people, and a short console summary."""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import json
+import logging
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import ConfigError
+from .core import Diagnosis
+
+__all__ = ["figure_png", "summary", "write_report"]
+
+log = logging.getLogger(__name__)
+
+
+def _plt() -> Any:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def figure_png(fig: Any) -> bytes:
+    """The figure as PNG bytes (the figure is closed)."""
+    plt = _plt()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
+    plt.close(fig)
+    return buf.getvalue()
+
+
+def _sphere_map(diag: Diagnosis) -> bytes:
+    plt = _plt()
+    twin = diag.twin
+    assert twin is not None
+    feats = [twin.features_rec]
+    titles = ["recording"]
+    if twin._cache:
+        feats.append(twin.features(None, 0))
+        titles.append("baseline twin (seed 0)")
+    fig = plt.figure(figsize=(11, 3.8))
+    lim = float(np.quantile(np.abs(feats[0].residual), 0.98)) or 1e-9
+    for i, (f, title) in enumerate(zip(feats, titles, strict=True)):
+        ax = fig.add_subplot(1, len(feats), i + 1, projection="mollweide")
+        lon = np.arctan2(f.dirs[:, 1], f.dirs[:, 0])
+        lat = np.arcsin(np.clip(f.dirs[:, 2], -1, 1))
+        sc = ax.scatter(lon, lat, c=f.residual, s=3, cmap="coolwarm", vmin=-lim, vmax=lim)
+        ax.set_title(f"{title}: relative norm residual over direction", fontsize=9)
+        ax.grid(True, alpha=0.3)
+        fig.colorbar(sc, ax=ax, orientation="horizontal", fraction=0.05, pad=0.08)
+    return figure_png(fig)
+
+
+def _time_plot(diag: Diagnosis) -> bytes:
+    plt = _plt()
+    twin = diag.twin
+    assert twin is not None
+    fig, ax = plt.subplots(figsize=(11, 3.2))
+    rec = twin.features_rec
+    ax.plot(rec.t, rec.residual, ".", ms=1.5, label="recording")
+    base = twin.features(None, 0)
+    ax.plot(base.t, base.residual, ".", ms=1.5, alpha=0.6, label="baseline twin")
+    best = diag.best
+    if best is not None and diag.cause != "none":
+        eff = twin.features({best.name: best.magnitude}, 0)
+        ax.plot(eff.t, eff.residual, ".", ms=1.5, alpha=0.6, label=f"twin + {best.name}")
+    if twin.temp is not None:
+        ax2 = ax.twinx()
+        ax2.plot(twin.t, twin.temp, "k-", lw=0.8, alpha=0.5)
+        ax2.set_ylabel("temperature, °C")
+    ax.set_xlabel("time, s")
+    ax.set_ylabel("|W(v-b)|/n - 1 (diag fit)")
+    ax.legend(loc="upper right", fontsize=8, markerscale=6)
+    return figure_png(fig)
+
+
+def _gap_plot(diag: Diagnosis) -> bytes:
+    plt = _plt()
+    names = list(diag.stages_before)
+    x = np.arange(len(names))
+    fig, ax = plt.subplots(figsize=(11, 3.2))
+    ax.bar(x - 0.2, [diag.stages_before[n] for n in names], 0.4, label="baseline twin")
+    ax.bar(x + 0.2, [diag.stages_after.get(n, 0.0) for n in names], 0.4, label=f"twin + {diag.cause}")
+    ax.axhline(2.5, color="k", lw=0.8, ls="--", label="within the baseline's spread below this")
+    ax.set_xticks(x, names, rotation=20, fontsize=8)
+    ax.set_ylabel("stage gap (RMS z)")
+    ax.set_yscale("symlog", linthresh=1.0)
+    ax.legend(fontsize=8)
+    return figure_png(fig)
+
+
+def _img(png: bytes, alt: str) -> str:
+    return f'<img alt="{html.escape(alt)}" src="data:image/png;base64,{base64.b64encode(png).decode()}"/>'
+
+
+def _table(rows: list[list[str]], head: list[str]) -> str:
+    out = ["<table><tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in head) + "</tr>"]
+    out += ["<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>" for r in rows]
+    return "\n".join(out) + "</table>"
+
+
+def _json_safe(x: Any) -> Any:
+    if isinstance(x, dict):
+        return {str(k): _json_safe(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [_json_safe(v) for v in x]
+    if isinstance(x, np.generic):
+        x = x.item()
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    return x
+
+
+def summary(diag: Diagnosis) -> str:
+    """A few lines for the console."""
+    lines = [f"where: {diag.where} (stage gap {diag.stages_before.get(diag.where, 0.0):.1f}; overall {diag.gap_before:.2f},"
+             f" baseline's own {max(diag.null_gaps, default=0.0):.2f})"]
+    if diag.cause == "none":
+        lines.append("cause: none (the recording is within the baseline's own spread)")
+    else:
+        best = diag.best
+        assert best is not None
+        also = f" ({' / '.join(diag.cause_effects)}: cannot be told apart)" if len(diag.cause_effects) > 1 else ""
+        lines.append(f"cause: {diag.cause}{also}; {best.name} at {best.magnitude:.4g} {best.unit}")
+        lines.append(f"shrink: {100 * diag.shrink:.0f} % of the gap removed "
+                     f"(overall {diag.gap_before:.2f} -> {diag.gap_after:.2f})")
+    if diag.close_calls():
+        lines.append(f"close call (the data barely separate them): {', '.join(diag.close_calls())}")
+    ranked = ", ".join(f"{f.name} {100 * f.shrink:.0f} %" for f in diag.effects[:4])
+    lines.append(f"ranking: {ranked}")
+    if diag.unobservable:
+        lines.append(f"unobservable with norm-based data: {', '.join(diag.unobservable)}")
+    return "\n".join(lines)
+
+
+def write_report(diag: Diagnosis, out_dir: str | Path, *, extra: dict[str, Any] | None = None) -> tuple[Path, Path]:
+    """Write ``diagnosis.json`` and ``report.html`` into ``out_dir`` (created); returns both paths."""
+    out = Path(out_dir)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        msg = f"cannot create the output directory {out}: {exc}"
+        raise ConfigError(msg) from exc
+    data = diag.to_dict()
+    if extra:
+        data.update(extra)
+    jpath = out / "diagnosis.json"
+    jpath.write_text(json.dumps(_json_safe(data), indent=2), encoding="utf-8")
+    figs = []
+    if diag.twin is not None:
+        figs = [_img(_sphere_map(diag), "residual over direction"), _img(_time_plot(diag), "residual over time"),
+                _img(_gap_plot(diag), "stage gaps before and after")]
+    eff_rows = [[f.name, f.group, f"{f.magnitude:.4g} {f.unit}", f"{f.gap_before:.2f}", f"{f.gap_after:.2f}",
+                 f"{100 * f.shrink:.0f} %"] for f in diag.effects]
+    stage_rows = [[k, f"{v:.2f}", f"{diag.stages_after.get(k, v):.2f}"] for k, v in diag.stages_before.items()]
+    groups = "; ".join(f"{g['group']}: {', '.join(g['effects'])}" for g in diag.equivalent) or "none"  # type: ignore[arg-type]
+    body = f"""<!doctype html><html><head><meta charset="utf-8"><title>margcal diagnosis</title>
+<style>body{{font-family:sans-serif;max-width:1100px;margin:auto}}table{{border-collapse:collapse}}
+td,th{{border:1px solid #ccc;padding:2px 8px;font-size:13px}}img{{max-width:100%}}</style></head><body>
+<h1>Sim-to-real gap diagnosis</h1>
+<pre>{html.escape(summary(diag))}</pre>
+<p>Sensor {html.escape(diag.sensor)}, {diag.n_samples} samples ({diag.n_fit} in the fitting stages), rest noise
+{diag.noise:.3g} of the field radius, {diag.seconds:.1f} s. Gaps are RMS z-scores against the baseline twin's
+spread over seeds. Equivalent (cannot be told apart): {html.escape(groups)}. Unobservable:
+{html.escape(', '.join(diag.unobservable) or 'none')}.</p>
+<h2>Where: stage gaps</h2>{_table(stage_rows, ["stage", "gap (baseline twin)", "gap (twin + cause)"])}
+{figs[2] if figs else ""}
+<h2>Which: effects ranked by the share of the gap they remove</h2>
+{_table(eff_rows, ["effect", "group", "fitted magnitude", "gap before", "gap after", "shrink"])}
+<h2>Residual over direction</h2>{figs[0] if figs else ""}
+<h2>Residual over time</h2>{figs[1] if figs else ""}
+<h2>Downstream: the validator</h2><pre>{html.escape(json.dumps(_json_safe(diag.downstream), indent=1))}</pre>
+{"<h2>Withheld part</h2><pre>" + html.escape(json.dumps(_json_safe(extra), indent=1)) + "</pre>" if extra else ""}
+</body></html>"""
+    hpath = out / "report.html"
+    hpath.write_text(body, encoding="utf-8")
+    log.info("wrote %s and %s", jpath, hpath)
+    return jpath, hpath

@@ -1,0 +1,328 @@
+"""Stage metrics of the sim-to-real gap: one feature vector per stage, computed the same way on a
+recording and on its simulated twin.
+
+Every stage turns a recording into a few numbers (mostly ``log10`` of a size, so ratios become
+differences); ``stage_gaps`` then puts the recording against several seeds of the twin on one common
+scale, a z-score ``z = (f_rec - mean_twin) / max(sd_twin, floor)``, where the floor (in the
+feature's own units, e.g. 0.02 decades = 5 %) keeps a deterministic twin feature from turning a
+negligible difference into an infinite gap. A stage's gap is the RMS of its features' z-scores.
+
+The stages, in the order a sample meets them:
+
+``rest_noise``
+    white noise std from second differences, ``d2 = v[i+1] - 2 v[i] + v[i-1]`` (std ``sqrt(6) s``),
+    trimmed at the 95th percentile of ``|d2|`` (so bursts, jumps and the gaps between still stretches
+    do not count) — the rotation itself adds only ``R (w dt)^2`` to ``d2``, far below the noise at 50-300 Hz.
+``quantisation``
+    distinct values per axis relative to the sample count, consecutive repeats per axis, and
+    repeats of all three axes at once (a sample-and-hold read-out).
+``clipping``
+    share of samples sitting exactly at an axis' extreme value (saturation).
+``residual_size``
+    RMS of the relative norm residual ``|W (v - b)| / n - 1`` of the baseline (``diag``) fit and of
+    the best (``sym``) fit.
+``residual_direction``
+    power of the ``diag`` residual per spherical-harmonic degree ``l = 1..4`` (least squares on the
+    real harmonics ``Y_lm`` up to ``l = 4``): cross-axis terms show at ``l = 2``, cubic
+    non-linearity at ``l = 4``, offsets left over at ``l = 1``.
+``residual_time``
+    the residual explained by ``cos(pi k tau) Y_lm(d)`` (``tau`` = time scaled to [0, 1], ``l <= 2``)
+    beyond the static ``Y_lm``, for ``k = 1, 2`` and then ``k = 3..5`` (nested least squares): an
+    offset or gain that changes in time (drift, warm-up, its ripple); the lag-1
+    autocorrelation of what the direction fit leaves (bursts); and, when the recording has a
+    temperature column, the residual explained by ``(T - mean T) Y_lm(d)``.
+``residual_tails``
+    the 99.9th and 99th percentiles of ``|r|`` and the plain std against the MAD sigma, and the
+    quantile skewness ``(q99 + q01 - 2 q50) / (q99 - q01)``.
+``validator``
+    ``log10(measured / predicted)`` calibration error of a 300-sample calibration set taken from the
+    recording, the measured error against the recording's best fit (see ``validator_errors``).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.special import sph_harm_y
+
+from ..calibration import Calibration
+from ..coverage import compute_indicators
+from ..errors import MargCalError
+from ..fitting import fit
+
+__all__ = [
+    "STAGES",
+    "StageFeatures",
+    "rest_noise",
+    "sh_basis",
+    "sh_power",
+    "stage_features",
+    "stage_gaps",
+    "validator_errors",
+]
+
+log = logging.getLogger(__name__)
+
+Array = NDArray[np.float64]
+
+STAGES: tuple[str, ...] = (
+    "rest_noise", "quantisation", "clipping", "residual_size", "residual_direction", "residual_time",
+    "residual_tails", "validator",
+)
+"""The stages, in the order a sample meets them."""
+
+# spread floors per stage feature, in the feature's own unit (decades for log10 features)
+_FLOORS: dict[str, tuple[float, ...]] = {
+    "rest_noise": (0.02,),
+    "quantisation": (0.02, 0.01, 0.005),
+    "clipping": (0.002,),
+    "residual_size": (0.01, 0.01),
+    "residual_direction": (0.05, 0.05, 0.05, 0.05),
+    "residual_time": (0.05, 0.05, 0.03, 0.05),
+    "residual_tails": (0.03, 0.02, 0.02, 0.03),
+    "validator": (0.05,),
+}
+_TRIM_STD = 0.8711  # std of a standard normal truncated at its two-sided 95 % quantile (±1.960)
+_L_MAX = 4
+_K_TIME = 5
+_N_VALIDATOR_SET = 300
+_TINY = 1e-12
+_MAX_ITER = 400  # LM iterations: strong effects make the ellipsoid fit converge slowly
+_N_REFERENCE_DIRS = 400
+
+
+@dataclass
+class StageFeatures:
+    """The feature vectors of one recording, stage name -> 1-D array, plus what the plots need.
+
+    Attributes:
+        values: stage name -> features (stages that do not apply are absent).
+        residual: relative norm residual of the ``diag`` fit on the fitting subsample.
+        dirs: unit directions of the fitting subsample (from the ``diag`` calibration).
+        t: times of the fitting subsample, seconds.
+        rest_noise: white noise std, fraction of the field radius.
+    """
+
+    values: dict[str, Array]
+    residual: Array
+    dirs: Array
+    t: Array
+    rest_noise: float
+
+
+def _log10(x: float) -> float:
+    return math.log10(max(float(x), _TINY))
+
+
+def rest_noise(raw: Array) -> float:
+    """White noise std per axis (raw units, RMS over the axes) from trimmed second differences."""
+    if raw.shape[0] < 5:
+        return 0.0
+    d2 = raw[2:] - 2.0 * raw[1:-1] + raw[:-2]
+    out = []
+    for a in range(3):
+        col = np.abs(d2[:, a])
+        keep = col[col <= np.quantile(col, 0.95)]
+        out.append(float(np.sqrt(np.mean(keep**2))) / math.sqrt(6.0) / _TRIM_STD)
+    return float(np.sqrt(np.mean(np.square(out))))
+
+
+def _readout_features(raw: Array) -> dict[str, Array]:
+    n = raw.shape[0]
+    uniq, rep, clip = [], [], []
+    same = np.diff(raw, axis=0) == 0
+    for a in range(3):
+        col = raw[:, a]
+        uniq.append(np.unique(col).size / n)
+        rep.append(float(same[:, a].mean()))
+        clip.append(float(np.mean((col == col.max()) | (col == col.min()))))
+    return {
+        "quantisation": np.array([_log10(float(np.mean(uniq))), float(np.mean(rep)), float(same.all(axis=1).mean())]),
+        "clipping": np.array([float(np.mean(clip))]),
+    }
+
+
+def sh_basis(dirs: Array, l_max: int = _L_MAX) -> Array:
+    """Real spherical harmonics ``Y_lm`` (orthonormal on the sphere) at unit ``dirs``, (n, (l_max+1)^2)."""
+    theta = np.arccos(np.clip(dirs[:, 2], -1.0, 1.0))
+    phi = np.arctan2(dirs[:, 1], dirs[:, 0])
+    cols = []
+    for ell in range(l_max + 1):
+        for m in range(-ell, ell + 1):
+            y = sph_harm_y(ell, abs(m), theta, phi)
+            if m == 0:
+                cols.append(y.real)
+            elif m > 0:
+                cols.append(math.sqrt(2.0) * (-1) ** m * y.real)
+            else:
+                cols.append(math.sqrt(2.0) * (-1) ** m * y.imag)
+    return np.column_stack(cols)
+
+
+def sh_power(residual: Array, basis: Array, l_max: int = _L_MAX) -> tuple[Array, Array]:
+    """Least-squares harmonic coefficients of ``residual`` and the RMS amplitude per degree ``l``.
+
+    Returns:
+        (coefficients ((l_max+1)^2,), amplitude (l_max+1,)) where amplitude[l] is the RMS over the
+        sphere of the degree-l part, ``sqrt(sum_m c_lm^2 / 4 pi)``.
+    """
+    coef = _lstsq(basis, residual)
+    amp = np.array([math.sqrt(float(np.sum(coef[ell * ell:(ell + 1) ** 2] ** 2)) / (4 * math.pi))
+                    for ell in range(l_max + 1)])
+    return coef, amp
+
+
+def _lstsq(x: Array, r: Array) -> Array:
+    """Least-squares coefficients by the (lightly ridged) normal equations: fast for tall, thin ``x``."""
+    g = x.T @ x
+    g[np.diag_indices_from(g)] += 1e-9 * max(float(np.trace(g)) / g.shape[0], _TINY)
+    out: Array = np.asarray(np.linalg.solve(g, x.T @ r), dtype=np.float64)
+    return out
+
+
+def _explained(r: Array, x: Array) -> Array:
+    """The least-squares fit of ``r`` on the columns of ``x``."""
+    return x @ _lstsq(x, r)
+
+
+def _time_features(r: Array, basis: Array, t: Array, temp: Array | None, r_dir: Array) -> Array:
+    """Residual explained by slow (k = 1, 2) and faster (k = 3..5) time modulation of ``Y_lm``, l <= 2,
+    beyond what the static harmonics explain (nested fits, so collinear columns cannot inflate it)."""
+    span = float(t[-1] - t[0]) if t.size > 1 else 1.0
+    tau = (t - t[0]) / (span if span > 0 else 1.0)
+    static = basis[:, :9]
+    slow = np.hstack([static] + [np.cos(math.pi * k * tau)[:, None] * static for k in (1, 2)])
+    full = np.hstack([slow] + [np.cos(math.pi * k * tau)[:, None] * static for k in range(3, _K_TIME + 1)])
+    f0, f1, f2 = _explained(r, static), _explained(r, slow), _explained(r, full)
+    left = r - r_dir
+    left = left - left.mean()
+    den = float(left @ left)
+    acf = float(left[1:] @ left[:-1]) / den if den > 0 else 0.0
+    feats = [_log10(float(np.sqrt(np.mean((f1 - f0) ** 2)))), _log10(float(np.sqrt(np.mean((f2 - f1) ** 2)))), acf]
+    if temp is not None and np.ptp(temp) > 0:
+        z = (temp - temp.mean()) / temp.std()
+        ft = _explained(r, np.hstack([static, z[:, None] * static]))
+        feats.append(_log10(float(np.sqrt(np.mean((ft - f0) ** 2)))))
+    return np.array(feats)
+
+
+def _tail_features(r: Array) -> Array:
+    med = float(np.median(r))
+    dev = np.abs(r - med)
+    sig = max(1.4826 * float(np.median(dev)), _TINY)
+    q01, q50, q99 = np.quantile(r, [0.01, 0.5, 0.99])
+    skew = float((q99 + q01 - 2 * q50) / max(q99 - q01, _TINY))
+    return np.array([_log10(float(np.quantile(dev, 0.999)) / sig), _log10(float(np.quantile(dev, 0.99)) / sig),
+                     _log10(float(np.std(r)) / sig), skew])
+
+
+def _uniform_dirs() -> Array:
+    u = np.random.default_rng(20261121).normal(size=(_N_REFERENCE_DIRS, 3))
+    return u / np.linalg.norm(u, axis=1, keepdims=True)
+
+
+_UNIFORM = _uniform_dirs()
+
+
+def validator_errors(points: Array, reference: Calibration, validator: object) -> tuple[float, float]:
+    """Predicted and measured calibration error of a calibration set drawn from a recording.
+
+    The validator predicts from the coverage indicators of ``points`` (about the centre and radius of
+    a linear sphere fit, as the node does before its first calibration). The measured error is the
+    corpus label (``corpus.make_set``) with the recording's best fit on all samples, ``reference``,
+    standing in for the unknown truth: the RMS of ``|W (v - b)| / n - 1`` of the ``sym`` fit of
+    ``points`` over fixed uniform directions ``v = reference.inverse_apply(n_ref u)``.
+
+    Returns:
+        (predicted, measured), both as fractions of the norm.
+    """
+    sph = fit(points, model="eye", method="sphere", norm=None)
+    ind = compute_indicators(points, sph.offset, float(sph.norm))
+    predicted = float(validator.predict_indicators(ind))  # type: ignore[attr-defined]
+    cal = fit(points, model="sym", method="lm", norm=None)
+    raw_u = reference.inverse_apply(_UNIFORM * reference.norm)
+    rel = np.linalg.norm(cal.apply(raw_u), axis=1) / cal.norm - 1.0
+    return predicted, float(np.sqrt(np.mean(rel**2)))
+
+
+def stage_features(
+    t: Array,
+    raw: Array,
+    temp: Array | None,
+    sub: NDArray[np.intp],
+    *,
+    validator: object | None = None,
+    norm: float | None = None,
+) -> StageFeatures:
+    """All stage features of one recording.
+
+    Args:
+        t: times (n,), seconds.
+        raw: raw readings (n, 3) at the full rate (rest noise and read-out stages use every sample).
+        temp: temperature (n,) or None.
+        sub: indices of the fitting subsample (the fits and residual stages use these only).
+        validator: a validator with ``predict_indicators`` (the ``validator`` stage is skipped if None).
+        norm: reference norm passed to the fits (None: estimated, det(W) = 1).
+
+    Raises:
+        DegenerateDataError, ConvergenceError: the subsample cannot be fitted (e.g. a static recording).
+    """
+    pts = raw[sub]
+    cal = fit(pts, model="diag", method="lm", norm=norm, max_iter=_MAX_ITER)
+    r_raw = cal.norm / abs(float(np.linalg.det(cal.matrix))) ** (1.0 / 3.0)
+    h = cal.apply(pts)
+    lengths = np.linalg.norm(h, axis=1)
+    r = lengths / cal.norm - 1.0
+    dirs = h / lengths[:, None]
+    noise_rel = rest_noise(raw) / r_raw
+    values: dict[str, Array] = {"rest_noise": np.array([_log10(noise_rel)])}
+    values.update(_readout_features(raw))
+    sym = _sym_fit(pts, norm)
+    sym_rms = float(sym.stats.rms_relative) if sym is not None and sym.stats is not None else float("nan")
+    values["residual_size"] = np.array([_log10(float(np.sqrt(np.mean(r**2)))), _log10(sym_rms)])
+    basis = sh_basis(dirs)
+    coef, amp = sh_power(r, basis)
+    values["residual_direction"] = np.array([_log10(a) for a in amp[1:]])
+    tsub = temp[sub] if temp is not None else None
+    values["residual_time"] = _time_features(r, basis, t[sub], tsub, basis @ coef)
+    values["residual_tails"] = _tail_features(r - basis @ coef)
+    if validator is not None and sym is not None:
+        pick = np.linspace(0, len(sub) - 1, min(_N_VALIDATOR_SET, len(sub))).astype(np.intp)
+        try:
+            pred, meas = validator_errors(pts[pick], sym, validator)
+            values["validator"] = np.array([_log10(meas / max(pred, _TINY))])
+        except MargCalError as exc:
+            log.debug("validator stage skipped: %s", exc)
+    return StageFeatures(values=values, residual=r, dirs=dirs, t=t[sub], rest_noise=noise_rel)
+
+
+def _sym_fit(pts: Array, norm: float | None) -> Calibration | None:
+    try:
+        return fit(pts, model="sym", method="lm", norm=norm, max_iter=_MAX_ITER)
+    except MargCalError:
+        return None
+
+
+def stage_gaps(
+    rec: dict[str, Array], twin_mean: dict[str, Array], twin_sd: dict[str, Array]
+) -> dict[str, float]:
+    """Gap of each stage on the common z scale: RMS over its features of ``(rec - mean) / max(sd, floor)``.
+
+    Stages missing on either side are left out.
+    """
+    out: dict[str, float] = {}
+    for name in STAGES:
+        if name not in rec or name not in twin_mean:
+            continue
+        a, m, s = rec[name], twin_mean[name], twin_sd[name]
+        if a.shape != m.shape:
+            continue
+        floor = np.resize(np.asarray(_FLOORS[name]), a.shape)
+        z = (a - m) / np.maximum(s, floor)
+        z = np.where(np.isfinite(z), z, 0.0)
+        out[name] = float(np.sqrt(np.mean(z**2)))
+    return out

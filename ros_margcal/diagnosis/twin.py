@@ -1,0 +1,239 @@
+"""The simulated twin of a recording: same directions and timestamps, the simulator's baseline model.
+
+From the recording's own fits (``fitting.fit`` on an evenly spaced subsample):
+
+- the *directions* come from the best fit (``sym``): ``d_i = W (v_i - b) / |W (v_i - b)|``, smoothed
+  along time (``smooth_directions``) so the twin does not inherit the recording's noise;
+- the *twin's true sensor* is the baseline model, offset + gains (the ``diag`` fit);
+- the *noise* is white, at the recording's rest-noise level (``stages.rest_noise``, or a level the
+  caller measured at rest, e.g. from a static recording of the same sensor).
+
+``Twin.features(effects, seed)`` simulates the twin (``simulation.simulate`` with the recording's
+timestamps and temperature, optionally with effects from the registry) and returns its stage
+features; ``Twin.spread`` gives the baseline's mean and spread over several seeds, the yardstick of
+every gap.
+"""
+
+from __future__ import annotations
+
+import itertools
+import logging
+import math
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.signal import savgol_filter
+
+from ..calibration import Calibration
+from ..errors import DegenerateDataError, InputError, MargCalError, as_points
+from ..fitting import fit
+from ..simulation import simulate
+from .stages import StageFeatures, rest_noise, stage_features
+
+__all__ = ["Baseline", "Twin", "build_twin", "mean_features", "smooth_directions", "subsample"]
+
+log = logging.getLogger(__name__)
+
+Array = NDArray[np.float64]
+
+DEFAULT_N_FIT = 6000
+"""Samples the fitting stages use (evenly spaced in time); the read-out stages use every sample."""
+MIN_SAMPLES = 50
+SMOOTH_WINDOW = 31
+_MAX_ITER = 400
+"""Samples of the direction smoothing window (0.3 s at 100 Hz)."""
+
+
+def smooth_directions(h: Array, window: int = SMOOTH_WINDOW, t: Array | None = None) -> Array:
+    """Unit directions of calibrated vectors ``h`` (n, 3), their noise smoothed out along time.
+
+    A Savitzky-Golay filter (quadratic, ``window`` samples) keeps the motion and removes most of the
+    noise: otherwise the twin would carry the recording's noise in its directions plus its own. With
+    times ``t``, stretches separated by a gap (more than 3 median steps, e.g. the moves an inactivity
+    gate removed) are smoothed separately.
+    """
+    h = np.array(h, dtype=np.float64)
+    n = h.shape[0]
+    cuts = [0, n]
+    if t is not None and n > 2:
+        dt = np.diff(t)
+        med = float(np.median(dt))
+        cuts = [0, *(np.flatnonzero(dt > 3 * med) + 1).tolist(), n] if med > 0 else cuts
+    for lo, hi in itertools.pairwise(cuts):
+        m = hi - lo
+        w = min(window, m if m % 2 else m - 1)
+        if w >= 5:
+            h[lo:hi] = savgol_filter(h[lo:hi], w, 2, axis=0, mode="interp")
+    lengths = np.linalg.norm(h, axis=1, keepdims=True)
+    return h / np.where(lengths > 0, lengths, 1.0)
+
+
+def subsample(n: int, n_fit: int) -> NDArray[np.intp]:
+    """Evenly spaced indices, at most ``n_fit`` of ``n`` (all when n <= n_fit)."""
+    if n <= n_fit:
+        return np.arange(n, dtype=np.intp)
+    return np.unique(np.linspace(0, n - 1, n_fit).round().astype(np.intp))
+
+
+def mean_features(items: list[StageFeatures]) -> tuple[dict[str, Array], dict[str, Array]]:
+    """Mean and sample std (ddof=1; zeros for one item) of the stage features over twin seeds."""
+    names = set(items[0].values)
+    for it in items[1:]:
+        names &= set(it.values)
+    mean, sd = {}, {}
+    for name in names:
+        stack = np.array([it.values[name] for it in items])
+        with warnings.catch_warnings():  # a feature that is NaN for every seed stays NaN (its gap is then 0)
+            warnings.simplefilter("ignore", RuntimeWarning)
+            mean[name] = np.nanmean(stack, axis=0)
+            sd[name] = np.nanstd(stack, axis=0, ddof=1) if len(items) > 1 else np.zeros(stack.shape[1])
+    return mean, sd
+
+
+@dataclass
+class Baseline:
+    """The effect-free twin over several seeds: the yardstick of every gap.
+
+    Attributes:
+        seeds: the seeds simulated.
+        features: their stage features.
+        mean: stage -> mean features over ``seeds[:n_mean]`` (the seeds effects are compared on).
+        sd: stage -> spread over all seeds.
+    """
+
+    seeds: tuple[int, ...]
+    features: list[StageFeatures]
+    mean: dict[str, Array]
+    sd: dict[str, Array]
+
+
+@dataclass
+class Twin:
+    """A recording's simulated twin (see the module docstring).
+
+    Attributes:
+        t: times (n,), seconds.
+        raw: the recording's raw readings (n, 3).
+        temp: its temperature (n,) or None.
+        sub: indices of the fitting subsample.
+        truth: the twin's true sensor (baseline model: the ``diag`` fit of the recording).
+        best: the recording's best (``sym``) fit, which gives the directions.
+        dirs: (n, 3) unit directions.
+        noise: white noise std, fraction of the field radius.
+        sensor: "mag" or "accel".
+        norm: the reference norm given by the user, or None (estimated).
+        validator: the validator of the ``validator`` stage, or None.
+        features_rec: the recording's own stage features.
+    """
+
+    t: Array
+    raw: Array
+    temp: Array | None
+    sub: NDArray[np.intp]
+    truth: Calibration
+    best: Calibration
+    dirs: Array
+    noise: float
+    sensor: str
+    norm: float | None
+    validator: object | None
+    features_rec: StageFeatures
+    _cache: dict[tuple[tuple[tuple[str, float], ...], int], StageFeatures] = field(default_factory=dict, repr=False)
+
+    def features(self, effects: dict[str, float] | None, seed: int) -> StageFeatures:
+        """Stage features of the twin simulated with ``effects`` on ``np.random.default_rng(seed)``."""
+        key = (tuple(sorted((k, float(v)) for k, v in (effects or {}).items() if v > 0)), int(seed))
+        hit = self._cache.get(key)
+        if hit is not None:
+            return hit
+        sim = simulate(self.truth, self.dirs, noise=self.noise, rng=np.random.default_rng(seed), t=self.t,
+                       effects=dict(key[0]), temperature=self.temp)
+        raw = sim.raw
+        if not np.isfinite(raw).all():
+            msg = f"the simulator produced non-finite readings for effects {dict(key[0])}"
+            raise InputError(msg)
+        out = stage_features(self.t, raw, self.temp, self.sub, validator=self.validator, norm=self.norm)
+        self._cache[key] = out
+        return out
+
+    def try_features(self, effects: dict[str, float] | None, seed: int) -> StageFeatures | None:
+        """``features``, or None when the twin with these effects cannot be fitted (a strong effect)."""
+        try:
+            return self.features(effects, seed)
+        except MargCalError as exc:
+            log.debug("twin with %s, seed %d: %s", effects, seed, exc)
+            return None
+
+    def spread(self, n_seeds: int = 6) -> Baseline:
+        """The baseline twin over seeds ``0 .. n_seeds-1``."""
+        seeds = tuple(range(max(2, n_seeds)))
+        feats = [self.features(None, s) for s in seeds]
+        _, sd = mean_features(feats)
+        mean, _ = mean_features(feats)
+        return Baseline(seeds=seeds, features=feats, mean=mean, sd=sd)
+
+
+def build_twin(
+    t: Array,
+    raw: Array,
+    *,
+    sensor: str,
+    temp: Array | None = None,
+    norm: float | None = None,
+    rest_noise_raw: float | None = None,
+    n_fit: int = DEFAULT_N_FIT,
+    validator: object | None = None,
+) -> Twin:
+    """Fit the recording and set up its twin.
+
+    Args:
+        t: times (n,), seconds, non-decreasing.
+        raw: raw readings (n, 3).
+        sensor: "mag" or "accel" (restricts the effects that apply).
+        temp: temperature (n,), °C, or None.
+        norm: reference norm of the calibrated vector (None: estimated).
+        rest_noise_raw: white noise std at rest in raw units (None: estimated from the recording).
+        n_fit: samples for the fitting stages.
+        validator: validator for the ``validator`` stage (None skips it).
+
+    Raises:
+        InputError: bad shapes, non-finite values, a bad rest noise.
+        DegenerateDataError: too few samples, or directions that cannot determine a fit.
+    """
+    pts = as_points(raw, "raw")
+    n = pts.shape[0]
+    times = np.asarray(t, dtype=np.float64).reshape(-1)
+    if times.shape != (n,) or not np.isfinite(times).all():
+        msg = f"t must hold {n} finite times, got shape {times.shape}"
+        raise InputError(msg)
+    if n < MIN_SAMPLES:
+        msg = f"a diagnosis needs at least {MIN_SAMPLES} samples, got {n}"
+        raise DegenerateDataError(msg)
+    tmp = None if temp is None else np.asarray(temp, dtype=np.float64).reshape(-1)
+    if tmp is not None and (tmp.shape != (n,) or not np.isfinite(tmp).all()):
+        msg = f"temperature must hold {n} finite values"
+        raise InputError(msg)
+    sub = subsample(n, n_fit)
+    try:
+        best = fit(pts[sub], model="sym", method="lm", norm=norm, max_iter=_MAX_ITER)
+        features_rec = stage_features(times, pts, tmp, sub, validator=validator, norm=norm)
+        truth = fit(pts[sub], model="diag", method="lm", norm=norm, sensor=sensor, max_iter=_MAX_ITER)
+    except MargCalError as exc:
+        msg = (f"the recording cannot be fitted ({exc}); a diagnosis needs a recording that turns the sensor "
+               "through many directions (a static recording only gives rest noise and quantisation)")
+        raise DegenerateDataError(msg) from exc
+    dirs = smooth_directions(best.apply(pts), t=times)
+    r_raw = truth.norm / abs(float(np.linalg.det(truth.matrix))) ** (1.0 / 3.0)
+    if rest_noise_raw is None:
+        noise = rest_noise(pts) / r_raw
+    else:
+        if not (math.isfinite(rest_noise_raw) and rest_noise_raw >= 0):
+            msg = f"rest noise must be a non-negative std in raw units, got {rest_noise_raw!r}"
+            raise InputError(msg)
+        noise = float(rest_noise_raw) / r_raw
+    truth = truth.replace(sensor=sensor, method="twin")
+    log.debug("twin: %d samples (%d fitted), radius %.4g raw units, noise %.3g of it", n, sub.size, r_raw, noise)
+    return Twin(t=times, raw=pts, temp=tmp, sub=sub, truth=truth, best=best, dirs=dirs, noise=noise, sensor=sensor,
+                norm=norm, validator=validator, features_rec=features_rec)
