@@ -46,7 +46,7 @@ from numpy.typing import NDArray
 
 from .baselines import BASELINES, baseline_scores
 from .calibration import Calibration
-from .coverage import compute_indicators
+from .coverage import compute_indicators, information_indicator
 from .errors import CalibrationFileError, ConfigError, MargCalError
 from .fitting import fit
 from .simulation import directions, random_sensor, simulate
@@ -68,8 +68,6 @@ FEATURES: tuple[str, ...] = ("b_frac", "c_norm", "d_norm", "e_info", "A", "B", "
 """Feature columns: the normalised indicators, the proposed information indicator E (``e_info``),
 then the raw indicators A–D of the paper."""
 
-_E_UNIFORM = 2.0 / 15.0
-"""Smallest eigenvalue of the information matrix of ``information_indicator`` for uniform directions."""
 
 FAILED_ERROR = 1.0
 """Label of a set whose fit raised (degenerate or non-converged): 100 % error, certainly ill."""
@@ -219,24 +217,6 @@ def _indicator_frame(points: Array) -> tuple[Array, float]:
     return center, float(np.linalg.norm(points - center, axis=1).mean()) or 1.0
 
 
-def information_indicator(points: Array, center: Array, radius: float) -> float:
-    """Proposed indicator E: how well the directions determine the ellipsoid (E-optimal design).
-
-    With ``u_i = (v_i - c) / r`` and the Jacobian row of the ellipsoid residual at the sphere,
-    ``j_i = (u_x, u_y, u_z, u_x^2, u_y^2, u_z^2, 2 u_x u_y, 2 u_x u_z, 2 u_y u_z)`` (offset and the
-    six entries of the symmetric matrix), the information matrix is ``M = (1/n) sum j_i j_i^T``.
-    Its smallest eigenvalue is ~0 when some ellipsoid deformation leaves every sample's norm
-    unchanged — a cap, a band, or two great circles (the quadric ``(n1·u)(n2·u)`` vanishes on
-    both), which C and D rate as well covered. Returned as ``log10(lambda_min / (2/15))``: 0 for
-    uniform directions, very negative for sets that cannot determine the fit (floored at -12).
-    """
-    u = (points - center) / radius
-    x, y, z = u[:, 0], u[:, 1], u[:, 2]
-    jac = np.column_stack([x, y, z, x * x, y * y, z * z, 2 * x * y, 2 * x * z, 2 * y * z])
-    lam = float(np.linalg.eigvalsh(jac.T @ jac / u.shape[0])[0])
-    return float(np.log10(max(lam / _E_UNIFORM, 1e-12)))
-
-
 def make_set(seed: int, index: int, *, n_min: int = 40, n_max: int = 600, noise_range: tuple[float, float] = (1e-3, 5e-3),
              n_test: int = 400, model: str = "sym", method: str = "lm", loss: str = "linear",
              pattern: str | None = None, n: int | None = None, params: dict[str, Any] | None = None) -> dict[str, Any]:
@@ -278,8 +258,7 @@ def make_set(seed: int, index: int, *, n_min: int = 40, n_max: int = 600, noise_
         error = FAILED_ERROR
     center, radius = _indicator_frame(points)
     ind = compute_indicators(points, center, radius)
-    extra = {"e_info": information_indicator(points, center, radius)}
-    feats = np.array([extra[name] if name in extra else float(getattr(ind, name)) for name in FEATURES])
+    feats = np.array([float(getattr(ind, name)) for name in FEATURES])
     if cal is not None:
         base = baseline_scores(points, cal)
         bvals = np.array([base[name] for name in BASELINES])

@@ -45,7 +45,7 @@ from scipy.spatial import ConvexHull, QhullError
 
 from .errors import ConfigError, InputError, as_points, as_vector3
 
-__all__ = ["HIST_BINS", "DirectionBuffer", "Indicators", "compute_indicators"]
+__all__ = ["HIST_BINS", "DirectionBuffer", "Indicators", "compute_indicators", "information_indicator"]
 
 _log = logging.getLogger(__name__)
 
@@ -73,6 +73,9 @@ class Indicators:
         d_norm: ``D / (4/3 pi r^3)``, below 1, approaching 1 for dense full coverage.
         n_points: Number of points.
         radius: The radius r used for normalisation.
+        e_info: Information indicator E (``information_indicator``): log10 of the smallest
+            eigenvalue of the ellipsoid fit's information matrix relative to uniform directions;
+            0 for uniform coverage, very negative for sets that cannot determine the fit.
     """
 
     A: float
@@ -84,6 +87,7 @@ class Indicators:
     d_norm: float
     n_points: int = 0
     radius: float = 0.0
+    e_info: float = -12.0
 
     def as_dict(self) -> dict[str, float]:
         """Return the indicators as a flat dict (for status messages and JSON)."""
@@ -112,7 +116,44 @@ def _percentile(s: list[float], q: float) -> float:
     return a + (b - a) * frac if frac < 0.5 else b - (b - a) * (1.0 - frac)
 
 
-def _normalise(a: float, b: int, c: float, d: float, n: int, radius: float, hist_bins: int) -> Indicators:
+_E_UNIFORM = 2.0 / 15.0
+"""Smallest eigenvalue of the information matrix below for uniform directions."""
+_E_FLOOR = 1e-12
+
+
+def _jacobian_rows(d: Array) -> Array:
+    """Rows ``(dx, dy, dz, dx², dy², dz², 2dxdy, 2dxdz, 2dydz)`` of the ellipsoid residual at the sphere."""
+    x, y, z = d[:, 0], d[:, 1], d[:, 2]
+    return np.column_stack([x, y, z, x * x, y * y, z * z, 2 * x * y, 2 * x * z, 2 * y * z])
+
+
+def _e_info(scatter: Array, n: int, radius: float) -> float:
+    """``log10(lambda_min(M) / (2/15))`` with ``M = D S D / n`` and ``D`` scaling by 1/r and 1/r²."""
+    if n < 9 or not radius > 0.0:
+        return float(np.log10(_E_FLOOR))
+    scale = np.r_[np.full(3, 1.0 / radius), np.full(6, 1.0 / radius**2)]
+    m = scatter * np.outer(scale, scale) / n
+    lam = float(np.linalg.eigvalsh(0.5 * (m + m.T))[0])
+    return float(np.log10(max(lam / _E_UNIFORM, _E_FLOOR)))
+
+
+def information_indicator(points: ArrayLike, center: ArrayLike, radius: float) -> float:
+    """Indicator E: how well the directions determine the ellipsoid (E-optimal design).
+
+    With ``u_i = (v_i - c) / r`` and the Jacobian row of the ellipsoid residual at the sphere,
+    ``j_i = (u_x, u_y, u_z, u_x², u_y², u_z², 2 u_x u_y, 2 u_x u_z, 2 u_y u_z)`` (offset and the six
+    entries of the symmetric matrix), the information matrix is ``M = (1/n) sum j_i j_i^T``. Its
+    smallest eigenvalue is ~0 when some ellipsoid deformation leaves every sample's norm unchanged:
+    a cap, a band, or two great circles (the quadric ``(n1·u)(n2·u)`` vanishes on both), sets that
+    C and D rate as well covered. Returned as ``log10(lambda_min / (2/15))``: 0 for uniform
+    directions, floored at -12.
+    """
+    d = as_points(points, "points") - as_vector3(center, "center")
+    jac = _jacobian_rows(d)
+    return _e_info(jac.T @ jac, d.shape[0], float(radius))
+
+
+def _normalise(a: float, b: int, c: float, d: float, n: int, radius: float, hist_bins: int, e_info: float) -> Indicators:
     r = radius if radius > 0.0 else float("nan")
     return Indicators(
         A=a,
@@ -124,6 +165,7 @@ def _normalise(a: float, b: int, c: float, d: float, n: int, radius: float, hist
         d_norm=d / (_SPHERE * r**3),
         n_points=n,
         radius=radius,
+        e_info=e_info,
     )
 
 
@@ -171,7 +213,9 @@ def compute_indicators(
             d_ind = float(ConvexHull(p).volume)
         except QhullError:
             d_ind = 0.0
-    return _normalise(a, b, c_ind, d_ind, p.shape[0], float(radius), hist_bins)
+    jac = _jacobian_rows(d)
+    e_info = _e_info(jac.T @ jac, p.shape[0], float(radius))
+    return _normalise(a, b, c_ind, d_ind, p.shape[0], float(radius), hist_bins, e_info)
 
 
 _REBUILD_EVERY = 4000
@@ -576,6 +620,8 @@ class DirectionBuffer:
         self._empty = 2 * self.hist_bins
         self._sum_r = 0.0
         self._sum_p = [0.0, 0.0, 0.0]
+        self._scatter = np.zeros((9, 9))  # sum of j j^T about the centre (indicator E)
+        self._scatter_updates = 0
         self._n_occupied = 0
         self._hull.clear()
         self._hull.set_lists(self._x, self._y, self._z)
@@ -728,6 +774,7 @@ class DirectionBuffer:
         sp[0] += x
         sp[1] += y
         sp[2] += z
+        self._scatter_add(dx, dy, dz, 1.0)
         self._hull.insert(slot, self._mean())
         self._cache = None
 
@@ -746,9 +793,27 @@ class DirectionBuffer:
         sp[0] -= x
         sp[1] -= y
         sp[2] -= z
+        self._scatter_add(x - cx, y - cy, z - cz, -1.0)
         self._free.append(slot)
+        if self._scatter_updates >= 4096:
+            self._refresh_scatter()
         self._hull.delete(slot, self._mean())
         self._cache = None
+
+    def _scatter_add(self, dx: float, dy: float, dz: float, sign: float) -> None:
+        j = np.array([dx, dy, dz, dx * dx, dy * dy, dz * dz, 2 * dx * dy, 2 * dx * dz, 2 * dy * dz])
+        self._scatter += sign * np.outer(j, j)
+        self._scatter_updates += 1
+
+    def _refresh_scatter(self) -> None:
+        """Recompute the indicator-E sum from the live samples (bounds add/subtract rounding drift)."""
+        self._scatter_updates = 0
+        live = self._live()
+        if not live:
+            self._scatter = np.zeros((9, 9))
+            return
+        jac = _jacobian_rows(self._pts[live] - np.array(self._center))
+        self._scatter = jac.T @ jac
 
     def _mean(self) -> tuple[float, float, float]:
         n = len(self)
@@ -777,11 +842,12 @@ class DirectionBuffer:
         n = len(self)
         if n == 0:
             radius = self._radius or 0.0
-            return _normalise(0.0, 2 * self.hist_bins, 0.0, 0.0, 0, radius, self.hist_bins)
+            return _normalise(0.0, 2 * self.hist_bins, 0.0, 0.0, 0, radius, self.hist_bins, float(np.log10(_E_FLOOR)))
         a = _quartile_spread(self._s_th) + _quartile_spread(self._s_ph)
         c = sum(s[-1] - s[0] for s in self._s_xyz)
         radius = self._radius if self._radius is not None else self._sum_r / n
-        self._cache = _normalise(a, self._empty, c, self._hull.volume, n, radius, self.hist_bins)
+        e_info = _e_info(self._scatter, n, radius)
+        self._cache = _normalise(a, self._empty, c, self._hull.volume, n, radius, self.hist_bins, e_info)
         return self._cache
 
     # ------------------------------------------------------------------ re-binning

@@ -45,6 +45,7 @@ def _same(a: Indicators, b: Indicators) -> None:
     assert a.C == pytest.approx(b.C, rel=1e-12, abs=1e-12)
     assert a.D == pytest.approx(b.D, rel=1e-7, abs=1e-9 * max(1.0, b.C) ** 3)
     assert a.radius == pytest.approx(b.radius, rel=1e-9)
+    assert 10**a.e_info == pytest.approx(10**b.e_info, rel=1e-6, abs=1e-9)
 
 
 def test_indicators_of_the_six_axis_points() -> None:
