@@ -380,8 +380,7 @@ def test_example_recording_matches_its_truth() -> None:
     """The shipped example: an IMU and a magnetometer with a hard-iron jump, consistent with its truth."""
     data = Path(simulate_cli.__file__).resolve().parents[1] / "data"
     bag, truth_file = data / "example_imu.mcap", data / "example_truth.yaml"
-    if not bag.exists():
-        pytest.skip("example recording not generated (scripts/make_example.py)")
+    assert bag.exists() and truth_file.exists(), "the example recording must ship in ros_margcal/data (scripts/make_example.py)"
     assert bag.stat().st_size < 4.5e6
     truth = load_calibrations(truth_file)
     acc = read_recording(bag, sensor="accel")
