@@ -49,7 +49,7 @@ from .calibration import Calibration
 from .coverage import compute_indicators, information_indicator
 from .errors import CalibrationFileError, ConfigError, MargCalError
 from .fitting import fit
-from .simulation import directions, random_sensor, simulate
+from .simulation import EFFECTS, directions, random_sensor, simulate
 
 __all__ = [
     "FAILED_ERROR",
@@ -219,7 +219,8 @@ def _indicator_frame(points: Array) -> tuple[Array, float]:
 
 def make_set(seed: int, index: int, *, n_min: int = 40, n_max: int = 600, noise_range: tuple[float, float] = (1e-3, 5e-3),
              n_test: int = 400, model: str = "sym", method: str = "lm", loss: str = "linear",
-             pattern: str | None = None, n: int | None = None, params: dict[str, Any] | None = None) -> dict[str, Any]:
+             pattern: str | None = None, n: int | None = None, params: dict[str, Any] | None = None,
+             effects: dict[str, float] | None = None) -> dict[str, Any]:
     """Simulate, fit, label and describe set ``index`` of the corpus with ``seed``.
 
     Args:
@@ -229,6 +230,9 @@ def make_set(seed: int, index: int, *, n_min: int = 40, n_max: int = 600, noise_
         n_test: held-out uniform directions for the label.
         model, method, loss: the fit whose error is the label (``fitting.fit``).
         pattern, n, params: force the coverage pattern, size and parameters (else random).
+        effects: simulator effects (name -> magnitude) added to the set, those that apply to the
+            set's sensor kind (the diagnosis retrains the validator with the effect it found); the
+            held-out test set stays effect-free, so the label is the error against the true sensor.
 
     Returns:
         A dict with ``features`` (len(FEATURES),), ``error``, ``baselines`` (len(BASELINES),),
@@ -244,7 +248,8 @@ def make_set(seed: int, index: int, *, n_min: int = 40, n_max: int = 600, noise_
         pattern, params = rand_pattern, rand_params
     n = rand_n if n is None else int(n)
     dirs = directions(pattern, n, rng, **(params or {}))
-    points = simulate(truth, dirs, noise=noise, rng=rng).raw
+    applied = {k: float(m) for k, m in (effects or {}).items() if kind in EFFECTS[k].sensors and m}
+    points = simulate(truth, dirs, noise=noise, rng=rng, effects=applied or None).raw
     test_raw = simulate(truth, directions("uniform", n_test, rng), noise=0.0, rng=rng).raw
     cal: Calibration | None
     try:
@@ -293,7 +298,7 @@ def build_corpus(n_sets: int, seed: int = 0, *, progress: bool | TextIO = False,
         n_sets: number of sets (>= 2, so both groups of the swap are populated).
         seed: corpus seed.
         progress: True (stderr) or a stream to show a ``\\r`` counter on.
-        **options: passed on to ``make_set`` (n_min, n_max, noise_range, n_test, model, method).
+        **options: passed on to ``make_set`` (n_min, n_max, noise_range, n_test, model, method, effects).
     """
     if n_sets < 2:
         msg = f"n_sets must be >= 2, got {n_sets}"
