@@ -14,7 +14,7 @@ from ros_margcal.baselines import BASELINES
 from ros_margcal.cli import validator as cli
 from ros_margcal.corpus import FAILED_ERROR, FEATURES, Corpus, build_corpus, information_indicator, make_set
 from ros_margcal.errors import CalibrationFileError, ConfigError
-from ros_margcal.simulation import directions
+from ros_margcal.simulation import EFFECTS, directions
 from ros_margcal.validation import FuzzyValidator, load_default_validator, roc_auc
 
 
@@ -182,3 +182,14 @@ def test_corpus_features_match_the_node_buffer() -> None:
         buf.set_center(sol[:3], math.sqrt(sol[3] + sol[:3] @ sol[:3]))
         ratios.append(v.predict_indicators(buf.indicators()) / float(v.predict(r["features"][cols])[0]))
     assert np.median(np.abs(np.log10(ratios))) < 0.05
+
+
+def test_make_set_applies_only_effects_of_its_sensor_kind() -> None:
+    """An effect changes the set's points; an effect of the other sensor kind, or magnitude 0, changes nothing."""
+    plain = make_set(5, 0, n=200, pattern="uniform")
+    other = "motion_leak" if plain["kind"] == "mag" else "disturbance"
+    assert plain["kind"] not in EFFECTS[other].sensors
+    assert np.array_equal(make_set(5, 0, n=200, pattern="uniform", effects={other: 0.5})["points"], plain["points"])
+    assert np.array_equal(make_set(5, 0, n=200, pattern="uniform", effects={"soft_iron": 0.0})["points"], plain["points"])
+    shaped = make_set(5, 0, n=200, pattern="uniform", effects={"nonorthogonality": 2.0})
+    assert np.abs(shaped["points"] - plain["points"]).max() > 1e-3 * np.abs(plain["points"]).max()
