@@ -97,17 +97,22 @@ def _vector3_like(template: Any, xyz: Array) -> Any:
     return type(template)(x=float(xyz[0]), y=float(xyz[1]), z=float(xyz[2]))
 
 
+def _calibrated(vec: Any, covariance: Any, cal: Calibration | None) -> tuple[Array, Array]:
+    """``W (v - b)`` and ``W Σ Wᵀ`` of one Vector3 and its flat covariance (passed through when ``cal`` is None)."""
+    xyz = vector3_to_numpy(vec)
+    cov = np.asarray(covariance, dtype=np.float64).reshape(-1)
+    if cal is None:
+        return xyz, cov
+    return cal.apply(xyz), propagate_covariance(cov, cal.matrix)
+
+
 def calibrate_mag(msg: Any, cal: Calibration | None) -> Any:
     """A new MagneticField of the same type: same header, ``W (v - b)``, covariance ``W Σ Wᵀ``.
 
     With ``cal=None`` the raw values are passed through (the node publishes raw data until the
     first calibration is accepted only when asked to).
     """
-    raw = vector3_to_numpy(msg.magnetic_field)
-    cov = np.asarray(msg.magnetic_field_covariance, dtype=np.float64).reshape(-1)
-    if cal is not None:
-        raw = cal.apply(raw)
-        cov = propagate_covariance(cov, cal.matrix)
+    raw, cov = _calibrated(msg.magnetic_field, msg.magnetic_field_covariance, cal)
     return type(msg)(
         header=msg.header,
         magnetic_field=_vector3_like(msg.magnetic_field, raw),
@@ -117,11 +122,7 @@ def calibrate_mag(msg: Any, cal: Calibration | None) -> Any:
 
 def calibrate_imu(msg: Any, cal: Calibration | None) -> Any:
     """A new Imu of the same type with the linear acceleration calibrated; everything else copied."""
-    acc = vector3_to_numpy(msg.linear_acceleration)
-    cov = np.asarray(msg.linear_acceleration_covariance, dtype=np.float64).reshape(-1)
-    if cal is not None:
-        acc = cal.apply(acc)
-        cov = propagate_covariance(cov, cal.matrix)
+    acc, cov = _calibrated(msg.linear_acceleration, msg.linear_acceleration_covariance, cal)
     return type(msg)(
         header=msg.header,
         orientation=msg.orientation,

@@ -61,7 +61,7 @@ class PipelineConfig:
     model: str = "sym"
     method: str = "lm"
     loss: str = "soft_l1"
-    f_scale_rel: float | None = None  # robust-loss scale / norm; None: fitting's default (3 MAD sigma)
+    f_scale_rel: float | None = None  # robust-loss scale / norm; None: fitting's default (2 MAD sigma, re-estimated)
     reference_norm: float | None = None
     max_iter: int = 200
     # input sanity
