@@ -64,9 +64,9 @@ log = logging.getLogger(__name__)
 
 Array = NDArray[np.float64]
 
-FEATURES: tuple[str, ...] = ("b_frac", "c_norm", "d_norm", "e_info", "A", "B", "C", "D")
-"""Feature columns: the normalised indicators, the proposed information indicator E (``e_info``),
-then the raw indicators A–D of the paper."""
+FEATURES: tuple[str, ...] = ("b_frac", "c_norm", "d_norm", "e_info", "e_total", "A", "B", "C", "D")
+"""Feature columns: the normalised indicators, the proposed information indicators (``e_info``, and
+``e_total`` = e_info + log10 n), then the raw indicators A–D of the paper."""
 
 
 FAILED_ERROR = 1.0

@@ -332,6 +332,13 @@ class SensorCalibrator:
             return []
         times = np.asarray(self._recent_t)
         first_bad = int(np.searchsorted(times, onset))
+        # the median puts the onset within a sample or two; samples there that the old calibration
+        # still explains were taken before the change and would bias the new fit (one pre-jump sample
+        # in 64 moved the offset by 9 % of the norm), so the new buffer starts at the first bad one
+        resid = self._recent_r
+        while first_bad < len(resid) - 1 and resid[first_bad] <= cfg.change_threshold:
+            first_bad += 1
+        onset = float(times[first_bad])
         self._changed = True
         self._change_onset = onset
         self.changes += 1

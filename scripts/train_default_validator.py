@@ -4,8 +4,9 @@
     python scripts/train_default_validator.py            # a few minutes at most on 2 cores
 
 It simulates the training corpus (``corpus.build_corpus``; seed and size below), reports the
-train-on-one-half / test-on-the-other AUC of the default inputs (normalised C and D), then trains
-on the whole corpus and writes the JSON. The same model results from
+train-on-one-half / test-on-the-other AUC of the default inputs (normalised C and the total
+information ``e_total``; consequents re-solved by least squares), then trains on the whole corpus and
+writes the JSON. The same model results from
 
     margcal train-validator --n-sets 4000 --seed 20131 --out ros_margcal/data/validator.json
 
@@ -37,7 +38,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=SEED)
     ap.add_argument("--out", type=Path, default=OUT)
     ap.add_argument("--inputs", default=",".join(DEFAULT_INPUTS),
-                    help="comma-separated features (default c_norm,d_norm; c_norm,e_info once the node provides e_info)")
+                    help=f"comma-separated features (default {','.join(DEFAULT_INPUTS)})")
     args = ap.parse_args(argv)
     inputs = tuple(args.inputs.split(","))
     corpus = build_corpus(args.n_sets, args.seed, progress=True)

@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 
 from ros_margcal.coverage import HIST_BINS, DirectionBuffer, Indicators, compute_indicators
 from ros_margcal.errors import ConfigError, InputError
+from ros_margcal.simulation import directions
 
 try:
     from ros_margcal.simulation import directions as _sim_directions
@@ -266,3 +267,13 @@ def test_incremental_equals_batch(ops: list[tuple[str, int]], per_bin: int, n_bi
         return
     ref = compute_indicators(buf.points(), buf.center, buf.radius, hist_bins=hist_bins)
     _same(buf.indicators(), ref)
+
+
+def test_e_total_counts_samples_e_info_does_not(rng: np.random.Generator) -> None:
+    """Uniform sets of 60 and 6000 samples have the same per-sample information (e_info near 0) but
+    e_total, the information of the whole set, differs by two decades; as_dict carries it."""
+    small = compute_indicators(directions("uniform", 60, rng), np.zeros(3), 1.0)
+    large = compute_indicators(directions("uniform", 6000, rng), np.zeros(3), 1.0)
+    assert abs(small.e_info) < 0.5 and abs(large.e_info) < 0.05
+    assert large.e_total - small.e_total == pytest.approx(2.0 + large.e_info - small.e_info, abs=1e-12)
+    assert small.as_dict()["e_total"] == pytest.approx(small.e_info + np.log10(60))

@@ -158,8 +158,11 @@ def test_messages_and_arrays_give_the_same_calibration() -> None:
     for t, v in zip(rec.t.tolist(), rec.raw, strict=True):
         via_arrays.push(t, v)
     assert via_arrays.calibration is not None and via_msgs.calibration is not None
-    # stamps go through sec/nanosec (ns rounding), so a sample at a bin's 0.5 s boundary may differ: compare closely
+    # stamps go through sec/nanosec (ns rounding), so a sample at a bin's 0.5 s boundary may differ and
+    # the two buffers are not identical: the offsets must agree within their own reported uncertainty
     a, b = via_msgs.calibration, via_arrays.calibration
-    assert np.linalg.norm(a.offset - b.offset) < 2e-3 * truth.norm
-    np.testing.assert_allclose(a.matrix, b.matrix, atol=5e-3)
+    assert a.stamp == pytest.approx(b.stamp, abs=0.1)
+    std = np.hypot(*[[c.parameter_std()[k] for k in ("b_x", "b_y", "b_z")] for c in (a, b)])
+    assert np.all(np.abs(a.offset - b.offset) < 3.0 * std)
+    np.testing.assert_allclose(a.matrix, b.matrix, atol=1e-2)
     assert via_msgs.status().samples_seen == len(rec)

@@ -145,6 +145,22 @@ def test_recalibrates_after_a_hard_iron_jump(mag_truth: Calibration) -> None:
     assert cal.status().changes_detected == 1
 
 
+def test_rebuilt_buffer_holds_no_sample_from_before_the_change(mag_truth: Calibration) -> None:
+    """The windowed median places the onset within a sample or two; a pre-jump sample left in the new
+    buffer biased the next fit by ~9 % of the norm, so the buffer starts at the first bad sample."""
+    rng = np.random.default_rng(41)
+    jump = tuple(0.6 * mag_truth.norm * np.array([1.0, -0.5, 0.4]))
+    rec = sim.magnetometer_stream(mag_truth, 70.0, 50.0, rng, motion="tumble", events=[sim.HardIronJump(60.0, jump)])
+    cal = SensorCalibrator("mag")
+    for t, v in zip(rec.t.tolist(), rec.raw, strict=True):
+        if any(e.kind is EventKind.CHANGED for e in cal.push(t, v)):
+            break
+    else:
+        pytest.fail("the jump was not detected")
+    times = cal.buffer.times()
+    assert len(times) > 10 and times.min() >= 60.0
+
+
 def test_follows_a_slow_drift(mag_truth: Calibration) -> None:
     """A slowly drifting offset ends with a calibration closer to the final offset than the first one."""
     rng = np.random.default_rng(51)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -163,6 +164,38 @@ def test_fuzzy_partition_stays_complete_and_predictions_bounded(seed: int, n_inp
     assert np.all(p >= lo - 1e-9 * abs(lo)) and np.all(p <= hi + 1e-9 * abs(hi))
 
 
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 10_000), n_inputs=st.integers(1, 3), n_mf=st.integers(2, 6))
+def test_lsq_consequents_never_raise_the_training_cost(seed: int, n_inputs: int, n_mf: int) -> None:
+    """Re-solving the consequents minimises Eq. 19's cost plus a ridge term that is zero at the online
+    result, so the training cost can only fall; the partition is the same as the paper's."""
+    rng = np.random.default_rng(seed)
+    x = rng.normal(size=(80, n_inputs))
+    err = 10 ** (-3 + np.tanh(x.sum(axis=1)) + 0.2 * rng.normal(size=80))
+    paper = FuzzyValidator([f"f{i}" for i in range(n_inputs)], n_mf).fit(x, err, repeats=3, seed=seed)
+    lsq = FuzzyValidator([f"f{i}" for i in range(n_inputs)], n_mf).fit(x, err, repeats=3, seed=seed, consequents="lsq")
+    for a, b in zip(paper.centers, lsq.centers, strict=True):
+        assert np.array_equal(a, b)
+    def cost(v: FuzzyValidator) -> float:
+        return float(np.sum((np.log10(v.predict(x)) - np.log10(err)) ** 2))
+    assert cost(lsq) <= cost(paper) * (1 + 1e-9) + 1e-12
+    assert lsq.metadata["consequents"] == "lsq" and paper.metadata["consequents"] == "paper"
+
+
+def test_lsq_consequents_fit_a_target_the_online_rule_misses() -> None:
+    """On a smooth target the least-squares consequents leave a much smaller training error than the
+    online C = 1 rule, whose last steps follow the last sets it saw."""
+    rng = np.random.default_rng(4)
+    x, e = _synthetic(rng, 800)
+    paper = FuzzyValidator().fit(x, e, repeats=5, seed=1)
+    lsq = FuzzyValidator().fit(x, e, repeats=5, seed=1, consequents="lsq")
+    def mse(v: FuzzyValidator) -> float:
+        return float(np.mean((np.log10(v.predict(x)) - np.log10(e)) ** 2))
+    assert mse(lsq) < 0.9 * mse(paper)
+    with pytest.raises(ConfigError, match="consequents"):
+        FuzzyValidator().fit(x, e, consequents="exact")
+
+
 def test_fuzzy_reproduces_a_piecewise_linear_target() -> None:
     """With a linear target and fixed centres, the consequents converge to the values at the knots."""
     rng = np.random.default_rng(2)
@@ -254,7 +287,8 @@ def test_default_validator_ships_and_is_trained() -> None:
     a full sphere (C, D normalised near their maxima) is predicted better than a small cap."""
     v = load_default_validator()
     assert v.threshold is not None and 0.0003 < v.threshold < 0.03
-    assert set(v.inputs) <= {"c_norm", "d_norm", "b_frac", "A", "B", "C", "D"}
-    full = {"c_norm": 1.0, "d_norm": 1.0, "b_frac": 0.0}
-    poor = {"c_norm": 0.3, "d_norm": 0.01, "b_frac": 0.9}
+    assert set(v.inputs) <= {"c_norm", "d_norm", "b_frac", "e_info", "e_total", "A", "B", "C", "D"}
+    # a full sphere of 600 samples against a 50-sample cap (e_total = e_info + log10 n)
+    full = {"c_norm": 1.0, "d_norm": 1.0, "b_frac": 0.0, "e_info": 0.0, "e_total": math.log10(600)}
+    poor = {"c_norm": 0.3, "d_norm": 0.01, "b_frac": 0.9, "e_info": -6.0, "e_total": -6.0 + math.log10(50)}
     assert v.predict_indicators(full) < v.threshold < v.predict_indicators(poor)
