@@ -24,15 +24,8 @@ from scipy.stats import spearmanr
 from ..baselines import BASELINES
 from ..corpus import FEATURES, Corpus, build_corpus
 from ..errors import ConfigError
-from ..validation import (
-    DEFAULT_MAX_ERROR,
-    DEFAULT_MAX_FPR,
-    FuzzyValidator,
-    ThresholdValidator,
-    evaluate_threshold,
-    roc_auc,
-    roc_curve,
-)
+from ..roc import evaluate_threshold, roc_auc, roc_curve
+from ..validation import DEFAULT_MAX_ERROR, DEFAULT_MAX_FPR, FuzzyValidator, ThresholdValidator
 
 __all__ = ["evaluate", "register", "train_fuzzy"]
 
