@@ -164,12 +164,12 @@ def format_tables(res: dict[str, Any]) -> str:
                          f"{r['specificity']:>7.4f} {r['auc_point']:>8.4f} {r['auc']:>8.4f} {r['spearman']:>7.3f}   {tail}")
     lines += ["", f"Table 3. Fuzzy validator (zero-order TSK, consequents: {res.get('consequents', 'paper')}), "
               "test on the other group"]
-    lines.append(f"{'train':>5} {'inputs':>14} {'max err':>8} {'opt thr':>8} {'sens':>7} {'spec':>7} {'ill acc':>8} "
+    lines.append(f"{'train':>5} {'inputs':>22} {'max err':>8} {'opt thr':>8} {'sens':>7} {'spec':>7} {'ill acc':>8} "
                  f"{'ROC AUC':>8} {'rho':>7}   average ROC AUC")
     for key, d in res["fuzzy"].items():
         for i, r in enumerate(d["runs"]):
             tail = _pm(d["auc"]) if i == 0 else ""
-            lines.append(f"{r['train_group'] + 1:>5} {key:>14} {res['max_error']:>8.4f} {r['threshold']:>8.4f} "
+            lines.append(f"{r['train_group'] + 1:>5} {key:>22} {res['max_error']:>8.4f} {r['threshold']:>8.4f} "
                          f"{r['sensitivity']:>7.4f} {r['specificity']:>7.4f} {r['ill_accepted']:>8.4f} {r['auc']:>8.4f} "
                          f"{r['spearman']:>7.3f}   {tail}")
     lines += ["", "Baselines (peer systems' gates at their own fixed thresholds; ROC AUC of the continuous score)"]
