@@ -13,7 +13,7 @@ setup(
     license="Apache-2.0",
     python_requires=">=3.10",
     packages=find_packages(exclude=["tests", "tests.*"]),
-    package_data={PACKAGE: ["py.typed", "data/*.mcap", "data/*.yaml", "data/*.json"]},
+    package_data={PACKAGE: ["py.typed", "data/*.mcap", "data/*.yaml"]},
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),

@@ -43,6 +43,7 @@ from .errors import CalibrationFileError, ConfigError
 from .messages import calibrate_imu, calibrate_mag, calibration_to_string, imu_to_numpy, mag_to_numpy, status_to_diagnostic
 from .pipeline import EventKind, Level, SensorCalibrator
 from .pipeline_config import PipelineConfig
+from .validation import load_validator
 
 __all__ = ["MargCalNode", "main"]
 
@@ -112,12 +113,15 @@ class MargCalNode(Node):
         self.declare_parameter("publish_diagnostics", False, ParameterDescriptor(description="also publish on /diagnostics"))
         self.declare_parameter("status_period_s", 1.0, _fdesc(0.05, 60.0, "period of /calib/status, s", read_only=True))
         self.declare_parameter("stale_timeout_s", 5.0, _fdesc(0.1, 3600.0, "no samples for this long -> STALE, s"))
+        self.declare_parameter("validator_file", "", ParameterDescriptor(
+            description="trained validator JSON (margcal train-validator); '' = the shipped one", read_only=True))
 
         self._publish_raw = bool(self.get_parameter("publish_uncalibrated").value)  # read per message: cached
         self._cals: dict[str, SensorCalibrator] = {}
         self._frame: dict[str, str] = dict.fromkeys(SENSORS, "")
         self._last_rx: dict[str, float] = {}
         loaded = self._load_file()
+        validator = self._load_validator()
         latched = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE,
                              durability=DurabilityPolicy.TRANSIENT_LOCAL)
         self._pub_cal: dict[str, Any] = {}
@@ -126,7 +130,7 @@ class MargCalNode(Node):
             cfg = self._declare_sensor(s)
             if not enabled:
                 continue
-            self._cals[s] = SensorCalibrator(s, cfg, calibration=loaded.get(s))
+            self._cals[s] = SensorCalibrator(s, cfg, calibration=loaded.get(s), validator=validator)
             self._pub_cal[s] = self.create_publisher(String, f"/calib/{s}", latched)
         if "mag" in self._cals:
             self._pub_mag = self.create_publisher(MagneticField, "imu_calibrated/mag", qos_profile_sensor_data)
@@ -258,6 +262,20 @@ class MargCalNode(Node):
             return {}
         self.get_logger().info(f"loaded calibrations {sorted(cals)} from {path}")
         return cals
+
+    def _load_validator(self) -> Any:
+        """The validator named by ``validator_file``; None (the shipped one) when unset or untrustworthy."""
+        name = str(self.get_parameter("validator_file").value)
+        if not name:
+            return None
+        path = Path(name).expanduser()
+        try:
+            v = load_validator(path)
+        except CalibrationFileError as exc:
+            self.get_logger().error(f"refusing validator file {path}: {exc}; using the shipped validator")
+            return None
+        self.get_logger().info(f"validator {path}: inputs {list(v.inputs)}, threshold {v.threshold}")
+        return v
 
     def _save(self) -> tuple[bool, str]:
         path = self._path()

@@ -50,8 +50,8 @@ import itertools
 import json
 import logging
 import os
+import sys
 from collections.abc import Mapping, Sequence
-from importlib import resources
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -68,6 +68,7 @@ __all__ = [
     "OperatingPoint",
     "ThresholdValidator",
     "auc",
+    "default_validator_candidates",
     "evaluate_threshold",
     "load_default_validator",
     "load_validator",
@@ -472,20 +473,43 @@ def load_validator(path: str | os.PathLike[str]) -> FuzzyValidator:
     return FuzzyValidator.load(path)
 
 
+def default_validator_candidates() -> list[Path]:
+    """Where the shipped validator (``msg_configs/validator.json``) may be, in search order.
+
+    A colcon or pip install puts ``msg_configs/`` under ``<prefix>/share/ros_margcal/`` (setup.py
+    data_files) with the package in ``<prefix>/lib/pythonX.Y/site-packages/ros_margcal``; an editable
+    install or a source checkout has it beside the package. The ament index is asked first when
+    ``ament_index_python`` is importable (a sourced ROS 2 environment).
+    """
+    here = Path(__file__).resolve().parent
+    found: list[Path] = []
+    try:
+        from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
+    except ImportError:
+        pass
+    else:
+        try:
+            found.append(Path(get_package_share_directory("ros_margcal")) / "msg_configs")
+        except (PackageNotFoundError, ValueError, LookupError):
+            pass
+    found.append(here.parent / "msg_configs")
+    if len(here.parents) > 3:  # <prefix>/lib/pythonX.Y/site-packages/ros_margcal
+        found.append(here.parents[3] / "share" / "ros_margcal" / "msg_configs")
+    found.append(Path(sys.prefix) / "share" / "ros_margcal" / "msg_configs")
+    return [d / "validator.json" for d in dict.fromkeys(found)]
+
+
 def load_default_validator() -> FuzzyValidator:
-    """The trained validator shipped as package data (``ros_margcal/data/validator.json``).
+    """The trained validator shipped in ``msg_configs/validator.json`` (``default_validator_candidates``).
 
     Regenerate it with ``python scripts/train_default_validator.py``.
+
+    Raises:
+        CalibrationFileError: when no candidate exists or the file cannot be trusted.
     """
-    ref = resources.files("ros_margcal") / "data" / "validator.json"
-    try:
-        text = ref.read_text(encoding="utf-8")
-    except (OSError, FileNotFoundError) as exc:
-        msg = f"the default validator is missing from the package ({ref}); run scripts/train_default_validator.py"
-        raise CalibrationFileError(msg) from exc
-    try:
-        d = json.loads(text)
-    except ValueError as exc:
-        msg = f"{ref}: default validator is not valid JSON: {exc}"
-        raise CalibrationFileError(msg) from exc
-    return FuzzyValidator.from_dict(d, where=str(ref))
+    for path in default_validator_candidates():
+        if path.is_file():
+            return FuzzyValidator.load(path)
+    where = ", ".join(str(p) for p in default_validator_candidates())
+    msg = f"the default validator is not installed (looked in {where}); run scripts/train_default_validator.py"
+    raise CalibrationFileError(msg)

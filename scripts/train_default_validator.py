@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Regenerate the shipped fuzzy validator, ``ros_margcal/data/validator.json``, deterministically.
+"""Regenerate the shipped fuzzy validator, ``msg_configs/validator.json``, deterministically.
 
     python scripts/train_default_validator.py            # a few minutes at most on 2 cores
 
@@ -8,7 +8,7 @@ train-on-one-half / test-on-the-other AUC of the default inputs (normalised C an
 information ``e_total``; consequents re-solved by least squares), then trains on the whole corpus and
 writes the JSON. The same model results from
 
-    margcal train-validator --n-sets 4000 --seed 20131 --out ros_margcal/data/validator.json
+    margcal train-validator --n-sets 4000 --seed 20131 --out msg_configs/validator.json
 
 The evaluation tables of the validators and baselines come from
 ``margcal evaluate-validator --n-sets 4000 --seed 7 --json eval.json --plot roc.png``.
@@ -28,7 +28,7 @@ from ros_margcal.validation import DEFAULT_MAX_ERROR, roc_auc
 
 N_SETS = 4000
 SEED = 20131
-OUT = Path(__file__).resolve().parents[1] / "ros_margcal" / "data" / "validator.json"
+OUT = Path(__file__).resolve().parents[1] / "msg_configs" / "validator.json"
 
 
 def main(argv: list[str] | None = None) -> int:

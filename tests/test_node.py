@@ -233,3 +233,25 @@ def test_sensors_can_be_switched_off(harness: Harness) -> None:
     assert harness.node.count_subscribers("imu/mag") >= 1
     harness.last_status()
     assert [s.name for s in harness.status[-1].status] == ["margcal: mag"]
+
+
+def test_validator_file_is_used_and_a_bad_one_refused(context: Context, classes: MessageClasses, tmp_path: Path) -> None:
+    """validator_file loads a trained model; a corrupt one is refused and the shipped model used."""
+    from ros_margcal.validation import FuzzyValidator, load_default_validator
+
+    rng = np.random.default_rng(3)
+    x = rng.uniform(size=(200, 1))
+    own = FuzzyValidator(["d_norm"], 4).fit(x, 10 ** (-1 - 2 * x[:, 0]), repeats=2)
+    good, bad = tmp_path / "own.json", tmp_path / "bad.json"
+    own.save(good)
+    bad.write_text("{not json")
+    h = Harness(context, classes, tmp_path / "cal.yaml", validator_file=str(good))
+    try:
+        assert h.node.calibrators["mag"].validator.inputs == ("d_norm",)
+    finally:
+        h.close()
+    h = Harness(context, classes, tmp_path / "cal.yaml", validator_file=str(bad))
+    try:
+        assert h.node.calibrators["mag"].validator.inputs == load_default_validator().inputs
+    finally:
+        h.close()

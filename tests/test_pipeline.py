@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from ros_margcal import simulation as sim
 from ros_margcal.calibration import Calibration, FitStats
-from ros_margcal.errors import ConfigError
+from ros_margcal.errors import CalibrationFileError, ConfigError
 from ros_margcal.pipeline import EventKind, FallbackValidator, Level, SensorCalibrator, State
 from ros_margcal.pipeline_config import PipelineConfig, guard_rails
 
@@ -336,6 +336,33 @@ def test_replay_csv_writes_timeline_calibration_and_plot(
     kinds = {e["kind"] for e in doc["timeline"]}
     assert {"status", "calibrated"} <= kinds
     assert (tmp_path / "c.png").stat().st_size > 1000
+
+
+def test_replay_uses_the_given_validator(tumbling_mag: sim.Recording, tmp_path: Path) -> None:
+    """--validator replaces the shipped model: one that predicts 50 % error everywhere never lets a fit
+    through; a corrupt file is refused with CalibrationFileError before anything runs."""
+    import argparse
+
+    from ros_margcal import io
+    from ros_margcal.cli import replay
+    from ros_margcal.validation import FuzzyValidator
+
+    never = FuzzyValidator(["c_norm"], 2)
+    never.consequents = np.log10([0.5, 0.5])
+    never.threshold = 0.01
+    never.save(tmp_path / "never.json")
+    (tmp_path / "bad.json").write_text("[]")
+    csv_path = io.write_csv(tmp_path / "mag.csv", tumbling_mag)
+    parser = argparse.ArgumentParser()
+    replay.register(parser.add_subparsers())
+    args = parser.parse_args(["replay", str(csv_path), "--sensor", "mag", "-q", "--validator", str(tmp_path / "never.json")])
+    assert args.func(args) == 0
+    result = replay.replay(csv_path, sensor="mag", progress=False, validator=FuzzyValidator.load(tmp_path / "never.json"))
+    cal = result["calibrators"]["mag"]
+    assert cal.calibration is None and cal.status().predicted_error == pytest.approx(0.5)
+    args = parser.parse_args(["replay", str(csv_path), "--sensor", "mag", "--validator", str(tmp_path / "bad.json")])
+    with pytest.raises(CalibrationFileError, match="not a ros_margcal fuzzy validator"):
+        args.func(args)
 
 
 def test_replay_needs_a_recording() -> None:

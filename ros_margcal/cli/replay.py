@@ -30,6 +30,7 @@ from ..calibration import Calibration, load_calibrations
 from ..errors import ConfigError
 from ..pipeline import Event, EventKind, SensorCalibrator, Status
 from ..pipeline_config import PipelineConfig
+from ..validation import load_validator
 
 __all__ = ["example_paths", "register", "replay", "run"]
 
@@ -57,6 +58,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("--json", type=Path, metavar="FILE", help="write the status timeline and final calibrations as JSON")
     p.add_argument("--plot", type=Path, metavar="FILE.png", help="write the coverage plot (phi vs theta)")
     p.add_argument("-q", "--quiet", action="store_true", help="no timeline, only the final calibrations")
+    p.add_argument("--validator", type=Path, metavar="FILE.json",
+                   help="a trained validator (margcal train-validator) instead of the shipped one")
     p.set_defaults(func=run)
 
 
@@ -75,7 +78,7 @@ def _samples(path: Path, sensor: str | None, unit: str | None) -> tuple[Iterator
 
 
 def replay(path: Path, *, sensor: str | None = None, unit: str | None = None, status_every: float = 10.0,
-           progress: bool = True, on_line: Any = None) -> dict[str, Any]:
+           progress: bool = True, on_line: Any = None, validator: Any = None) -> dict[str, Any]:
     """Run the pipeline over a recording; returns calibrators, timeline and counts.
 
     Args:
@@ -84,6 +87,7 @@ def replay(path: Path, *, sensor: str | None = None, unit: str | None = None, st
         status_every: seconds of recording time between timeline status entries (0: events only).
         progress: show a counter on stderr.
         on_line: called with each timeline line (str) as it happens.
+        validator: the validator every calibrator uses (None: the shipped default).
     """
     samples, units = _samples(path, sensor, unit)
     bar = _Progress(enabled=progress)
@@ -94,7 +98,7 @@ def replay(path: Path, *, sensor: str | None = None, unit: str | None = None, st
     for t, s, xyz, gyro in samples:
         cal = cals.get(s)
         if cal is None:
-            cal = cals[s] = SensorCalibrator(s, PipelineConfig.for_sensor(s, units.get(s)))
+            cal = cals[s] = SensorCalibrator(s, PipelineConfig.for_sensor(s, units.get(s)), validator=validator)
             next_status[s] = t
         for ev in cal.push(t, xyz, gyro):
             timeline.append(_event_entry(ev))
@@ -214,9 +218,11 @@ def run(args: argparse.Namespace) -> int:
     if not math.isfinite(args.status_every) or args.status_every < 0:
         msg = f"--status-every must be >= 0, got {args.status_every}"
         raise ConfigError(msg)
-    print(f"replaying {path}")
+    validator = load_validator(args.validator) if args.validator is not None else None
+    print(f"replaying {path}" + (f" with the validator {args.validator}" if validator is not None else ""))
     printer = None if args.quiet else print
-    result = replay(path, sensor=args.sensor, unit=args.unit, status_every=args.status_every, on_line=printer)
+    result = replay(path, sensor=args.sensor, unit=args.unit, status_every=args.status_every, on_line=printer,
+                    validator=validator)
     cals: dict[str, SensorCalibrator] = result["calibrators"]
     truth = load_calibrations(truth_path) if truth_path is not None else {}
     summary: dict[str, Any] = {}
