@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import math
 import os
 import tempfile
 from dataclasses import dataclass
@@ -46,6 +47,8 @@ MODELS = ("eye", "diag", "sym")
 """Model kinds: offset only (W = k I), offset and per-axis gains, offset and symmetric matrix."""
 
 Array = NDArray[np.float64]
+
+_MAX_CONDITION = 1e12  # a larger condition number is a singular matrix for our purposes
 
 
 @dataclass(frozen=True)
@@ -72,6 +75,29 @@ def _as_matrix(x: ArrayLike, name: str) -> Array:
         msg = f"{name} must be finite, got {arr.tolist()}"
         raise InputError(msg)
     return arr
+
+
+def _condition_1(matrix: Array) -> float:
+    """1-norm condition ``|W|_1 |W^-1|_1`` of a 3x3 matrix from its adjugate (inf when singular).
+
+    Closed form, no SVD: ``W^-1 = adj(W) / det(W)`` with ``adj`` the transposed cofactors. For 3x3 it is
+    within a factor 3 of the 2-norm condition (``cond_2 / 3 <= cond_1 <= 3 cond_2``).
+    """
+    entries = matrix.ravel().tolist()
+    big = max(map(abs, entries))
+    if not big > 0.0:
+        return math.inf
+    (a, b, c, d, e, f, g, h, i) = (x / big for x in entries)  # the condition is scale-free; this avoids overflow
+    c00, c01, c02 = e * i - f * h, f * g - d * i, d * h - e * g  # cofactors of row 0 (= column 0 of adj)
+    c10, c11, c12 = c * h - b * i, a * i - c * g, b * g - a * h
+    c20, c21, c22 = b * f - c * e, c * d - a * f, a * e - b * d
+    det = a * c00 + b * c01 + c * c02
+    if not abs(det) > 0.0:
+        return math.inf
+    norm_w = max(abs(a) + abs(d) + abs(g), abs(b) + abs(e) + abs(h), abs(c) + abs(f) + abs(i))  # max column sum
+    norm_adj = max(abs(c00) + abs(c01) + abs(c02), abs(c10) + abs(c11) + abs(c12), abs(c20) + abs(c21) + abs(c22))
+    cond = norm_w * norm_adj / abs(det)
+    return cond if math.isfinite(cond) else math.inf
 
 
 def _frozen(arr: Array) -> Array:
@@ -115,8 +141,9 @@ class Calibration:
     def __post_init__(self) -> None:
         offset = as_vector3(self.offset, "offset")
         matrix = _as_matrix(self.matrix, "matrix")
-        if abs(np.linalg.det(matrix)) < 1e-300 or np.linalg.cond(matrix) > 1e12:
-            msg = f"matrix must be invertible, got {matrix.tolist()}"
+        cond = _condition_1(matrix)
+        if not cond <= _MAX_CONDITION:
+            msg = f"matrix must be invertible (1-norm condition {cond:.3g} > {_MAX_CONDITION:.0e}), got {matrix.tolist()}"
             raise InputError(msg)
         if not (np.isfinite(self.norm) and self.norm > 0):
             msg = f"norm must be a positive finite number, got {self.norm!r}"
@@ -135,6 +162,28 @@ class Calibration:
                 msg = f"covariance must be {p}x{p} to match parameter_names, got {cov.shape}"
                 raise InputError(msg)
             object.__setattr__(self, "covariance", _frozen(cov))
+
+    @classmethod
+    def _trusted(cls, **values: Any) -> Calibration:
+        """Build from values a fit has already checked, skipping ``__post_init__``'s conversions and copies.
+
+        For ``fitting`` only: float64 arrays of the right shapes made for this calibration (they are
+        frozen in place, not copied), an invertible matrix, a positive float norm, a known model.
+        """
+        if not values.keys() <= _FIELD_DEFAULTS.keys():
+            msg = f"Calibration has no field(s) {sorted(values.keys() - _FIELD_DEFAULTS.keys())}"
+            raise TypeError(msg)
+        state = {**_FIELD_DEFAULTS, **values}
+        for name in ("offset", "matrix"):
+            if state[name] is dataclasses.MISSING:
+                msg = f"Calibration needs {name}"
+                raise TypeError(msg)
+        for name in ("offset", "matrix", "covariance"):
+            if state[name] is not None:
+                state[name].flags.writeable = False
+        cal = object.__new__(cls)
+        cal.__dict__.update(state)  # what a frozen dataclass's __init__ stores, without __post_init__
+        return cal
 
     # -- use -------------------------------------------------------------------------------------
 
@@ -308,6 +357,9 @@ class Calibration:
         return cals[sensor]
 
 
+_FIELD_DEFAULTS = {f.name: f.default for f in dataclasses.fields(Calibration)}
+
+
 def _dump(cals: dict[str, Calibration], node: str) -> str:
     doc = {node: {"ros__parameters": {"calibration": {k: c.to_dict() for k, c in cals.items()}}}}
     return yaml.safe_dump(doc, sort_keys=False, default_flow_style=None)
@@ -362,4 +414,3 @@ def load_calibrations(path: str | os.PathLike[str]) -> dict[str, Calibration]:
         msg = f"cannot read calibration file {p}: {exc}"
         raise CalibrationFileError(msg) from exc
     return _parse(text, str(p))
-

@@ -152,6 +152,45 @@ def test_bad_values_are_refused(kwargs: dict, match: str) -> None:
         Calibration(**kwargs)
 
 
+@pytest.mark.parametrize(("smallest", "ok"), [(1e-3, True), (1e-11, True), (1e-13, False), (0.0, False)])
+def test_near_singular_matrix(smallest: float, ok: bool) -> None:
+    """The invertibility check (closed-form 1-norm condition, limit 1e12) accepts or refuses by conditioning."""
+    rot = np.linalg.qr(np.random.default_rng(1).normal(size=(3, 3)))[0]
+    matrix = (rot * np.array([1.0, 0.5, smallest])) @ rot.T
+    if ok:
+        assert Calibration(np.zeros(3), matrix).matrix.shape == (3, 3)
+    else:
+        with pytest.raises(InputError, match="invertible"):
+            Calibration(np.zeros(3), matrix)
+
+
+@settings(max_examples=100, deadline=None)
+@given(arrays(np.float64, (3, 3), elements=st.floats(-1e6, 1e6)), st.integers(-8, 8))
+def test_condition_matches_numpy(matrix: np.ndarray, exponent: int) -> None:
+    """The closed-form 1-norm condition number equals numpy's, at any scale."""
+    from ros_margcal.calibration import _condition_1
+
+    m = matrix * 10.0**exponent
+    expected = np.linalg.cond(m, 1) if np.linalg.matrix_rank(m) == 3 else np.inf
+    got = _condition_1(m)
+    if np.isfinite(expected) and expected < 1e6:
+        assert got == pytest.approx(expected, rel=1e-6)
+    elif not np.isfinite(expected):
+        assert got > 1e12 or not np.isfinite(got)
+
+
+def test_trusted_constructor_freezes_and_checks_fields() -> None:
+    """The fit's fast constructor gives the same value as the checked one, frozen, and refuses unknown fields."""
+    offset, matrix = np.array([1.0, 2.0, 3.0]), np.diag([1.0, 2.0, 3.0])
+    fast = Calibration._trusted(offset=offset, matrix=matrix, norm=2.0, model="diag")
+    assert fast.allclose(Calibration(offset, matrix, 2.0, model="diag"), rtol=0)
+    assert not fast.offset.flags.writeable and fast.stats is None and fast.parameter_names == ()
+    with pytest.raises(TypeError, match="no field"):
+        Calibration._trusted(offset=offset, matrix=matrix, bogus=1)
+    with pytest.raises(TypeError, match="needs matrix"):
+        Calibration._trusted(offset=offset)
+
+
 def test_arrays_are_read_only(true_cal: Calibration) -> None:
     """A calibration cannot be corrupted in place through its arrays."""
     with pytest.raises(ValueError, match="read-only"):

@@ -15,6 +15,7 @@ from ros_margcal.calibration import Calibration, load_calibrations
 from ros_margcal.cli import calibrate as calibrate_cli
 from ros_margcal.errors import ConfigError, ConvergenceError, DegenerateDataError, InputError, MargCalError
 from ros_margcal.fitting import METHODS, SUPPORTED, fit, residuals
+from ros_margcal.fitting_core import check_geometry, solve_spd3
 
 Array = np.ndarray
 
@@ -127,6 +128,66 @@ def test_reported_covariance_matches_spread(method: str, model: str) -> None:
         sig.append(np.sqrt(np.diag(cal.covariance))[[0, 1, 2, -1]])
     ratio = np.std(est, axis=0) / np.mean(sig, axis=0)
     assert np.all((ratio > 0.65) & (ratio < 1.5)), ratio
+
+
+def gauss_newton_covariance(cal: Calibration, raw: Array) -> Array:
+    """Reference ``s^2 (J^T J)^-1`` over (b, w_xx, w_yy, w_zz) of a diag calibration with given norm."""
+    d = raw - cal.offset
+    y = d @ cal.matrix.T
+    rho = np.linalg.norm(y, axis=1)
+    u = y / rho[:, None]
+    j = np.column_stack([-(u @ cal.matrix), u * d])
+    r = rho - cal.norm
+    return float(r @ r) / (raw.shape[0] - 6) * np.linalg.inv(j.T @ j)
+
+
+@pytest.mark.parametrize("n", [7, 100, 3000])
+def test_lin_auto_covariance_is_the_gauss_newton_one(n: int, rng: np.random.Generator) -> None:
+    """lin_auto's covariance, formed from its own rows, equals s^2 (J^T J)^-1 of the norm residual at its solution."""
+    truth = truth_for("diag")
+    raw = raw_points(truth, rng, n, noise=0.01)
+    cal = fit(raw, model="diag", method="lin_auto", norm=truth.norm)
+    assert cal.covariance is not None and cal.parameter_names == ("b_x", "b_y", "b_z", "w_xx", "w_yy", "w_zz")
+    np.testing.assert_allclose(cal.covariance, gauss_newton_covariance(cal, raw), rtol=1e-8, atol=0)
+    assert cal.stats is not None
+    np.testing.assert_allclose(cal.stats.rms, np.sqrt(np.mean(cal.norm_error(raw) ** 2)), rtol=1e-12)
+    assert not cal.covariance.flags.writeable and not cal.matrix.flags.writeable and not cal.offset.flags.writeable
+
+
+def test_lin_auto_with_as_many_points_as_parameters_has_no_covariance(rng: np.random.Generator) -> None:
+    """With N = P there is no residual variance: the fit still returns stats, but no covariance."""
+    truth = truth_for("eye")
+    cal = fit(raw_points(truth, rng, 6), model="diag", method="lin_auto", norm=truth.norm)
+    assert cal.covariance is None and cal.parameter_names == () and cal.stats is not None
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    log_ratios=st.lists(st.floats(-9.0, 0.0), min_size=2, max_size=2),
+)
+def test_geometry_check_matches_singular_values(seed: int, log_ratios: list[float]) -> None:
+    """The geometry check (closed-form fast path or eigensolver) rejects exactly the scatters with a
+    singular-value ratio <= 1e-6, whatever their orientation."""
+    rng = np.random.default_rng(seed)
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    sv = np.array([1.0, 10 ** log_ratios[0], 10 ** log_ratios[1]]) * 7.0
+    scatter = (q * sv**2) @ q.T
+    ratio = np.sort(sv)[:2] / sv.max()
+    if ratio.min() <= 0.5e-6:
+        with pytest.raises(DegenerateDataError, match=r"coplanar|collinear"):
+            check_geometry(100, scatter, 1.0, 9)
+    elif ratio.min() >= 2e-6:
+        check_geometry(100, scatter, 1.0, 9)
+
+
+def test_closed_form_solve_matches_lapack_and_rejects_singular(rng: np.random.Generator) -> None:
+    """The 3x3 Cholesky solve agrees with numpy and refuses a singular normal matrix with DegenerateDataError."""
+    a = rng.normal(size=(3, 8))
+    spd, b = a @ a.T, rng.normal(size=3)
+    np.testing.assert_allclose(solve_spd3(spd, b), np.linalg.solve(spd, b), rtol=1e-12)
+    with pytest.raises(DegenerateDataError, match="normal equations are singular"):
+        solve_spd3(np.outer([1.0, 2.0, 3.0], [1.0, 2.0, 3.0]), b)
 
 
 @settings(max_examples=25, deadline=None)
