@@ -51,16 +51,27 @@ _MVEE_ACCEPT = 1e-4  # optimality gap accepted when Khachiyan stalls on a degene
 def sphere(z: Array, scatter: Array, scratch: Array | None = None) -> tuple[Array, float]:
     """Gietzelt step 1, Eqs. 5-12: centre ``o`` and radius ``r`` of the best sphere (``scatter = z z^T``).
 
-    ``scratch``, if given, is an (N,) buffer it may overwrite (saves an allocation).
+    ``scratch``, if given, is a (3, N) buffer it may overwrite (saves an allocation).
     """
-    q = np.einsum("in,in->n", z, z, out=scratch)  # -E_i, Eq. 8
-    bcd = solve_spd3(scatter, z @ q)  # -(B, C, D) of Eq. 11 (block diagonal on centred data)
+    o, r2 = _sphere_centre(z, scatter.tolist(), scratch)
+    return np.array(o), math.sqrt(r2)
+
+
+def _sphere_centre(z: Array, s: list[list[float]], scratch: Array | None) -> tuple[list[float], float]:
+    """Centre and squared radius of the sphere fit from the scatter ``s`` as nested lists (no numpy scalars).
+
+    One pass: the third moments ``sum_i z_ij z_ik^2`` give ``z E'`` with ``E'_i = |z_i|^2 = -E_i`` (Eq. 8),
+    and on centred data of unit RMS radius ``sum_i |z_i|^2 = tr(z z^T)`` gives ``A`` without a pass.
+    """
+    sq = np.multiply(z, z, out=scratch)
+    zq = [a + b + c for a, b, c in (z @ sq.T).tolist()]
+    bcd = solve_spd3(s, zq)  # -(B, C, D) of Eq. 11 (block diagonal on centred data)
     o = [0.5 * x for x in bcd]  # o = -(B, C, D) / 2, Eq. 7b-d
-    r2 = o[0] * o[0] + o[1] * o[1] + o[2] * o[2] + float(q.sum()) / z.shape[1]  # Eq. 12 with A = sum E_i / N
+    r2 = o[0] * o[0] + o[1] * o[1] + o[2] * o[2] + (s[0][0] + s[1][1] + s[2][2]) / z.shape[1]  # Eq. 12
     if not r2 > 0:
         msg = "sphere fit found no real radius (|o|^2 - A <= 0); the points do not lie on a closed surface"
         raise DegenerateDataError(msg)
-    return np.array(o), math.sqrt(r2)
+    return o, r2
 
 
 def lin_auto(z: Array, scatter: Array) -> tuple[Array, list[float], Array]:
@@ -70,16 +81,18 @@ def lin_auto(z: Array, scatter: Array) -> tuple[Array, list[float], Array]:
     """
     n_pts = z.shape[1]
     rows = np.empty((6, n_pts))
-    o, _ = sphere(z, scatter, scratch=rows[5])
-    np.subtract(z, o[:, None], out=rows[:3])
+    s = scatter.tolist()
+    o, _ = _sphere_centre(z, s, rows[3:])
+    oa = np.array(o)
+    np.subtract(z, oa[:, None], out=rows[:3])
     xyz = np.multiply(rows[:3], rows[:3], out=rows[3:])  # X_i, Y_i, Z_i, Eq. 14a-c
     # right-hand side of Eq. 17: sum_i X_i = sum_i (z_ix - o_x)^2 = scatter_xx + N o_x^2 (centred z)
-    rhs = [scatter[j, j] + n_pts * oj * oj for j, oj in enumerate(o.tolist())]
+    rhs = [s[0][0] + n_pts * o[0] * o[0], s[1][1] + n_pts * o[1] * o[1], s[2][2] + n_pts * o[2] * o[2]]
     t = solve_spd3(xyz @ xyz.T, rhs)  # Eq. 17
     if min(t) <= 0:
         msg = f"LinAutoCalibration step 2 found t = 1/s^2 <= 0 ({t}): not an ellipsoid; cover more directions"
         raise DegenerateDataError(msg)
-    return o, t, rows
+    return oa, t, rows
 
 
 def lin_auto_fit(z: Array, scatter: Array, n: float) -> tuple[Array, Array, Array | None]:
@@ -100,8 +113,10 @@ def lin_auto_fit(z: Array, scatter: Array, n: float) -> tuple[Array, Array, Arra
         return theta, rho - n, None
     rows /= np.maximum(rho, 1e-300, out=rho)  # K = [d; X] / rho
     r = np.subtract(rho, n, out=rho)  # the residuals, in place (rho is not needed any more)
-    dscale = np.array([-x for x in w2] + w)
-    jtj = (rows @ rows.T) * (dscale[:, None] * dscale)  # J^T J = D K K^T D
+    # J^T = D K with D = diag(-w^2, w): scale the rows in place, then one product (no large temporaries:
+    # at N = 10000 a second (6, N) or (3, N) buffer costs more than syrk loses, fitting_core docstring)
+    rows *= np.array([-w2[0], -w2[1], -w2[2], *w])[:, None]
+    jtj = rows @ rows.T
     return theta, r, gn_covariance(jtj, float(r @ r) / (n_pts - 6))
 
 

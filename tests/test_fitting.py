@@ -15,7 +15,7 @@ from ros_margcal.calibration import Calibration, load_calibrations
 from ros_margcal.cli import calibrate as calibrate_cli
 from ros_margcal.errors import ConfigError, ConvergenceError, DegenerateDataError, InputError, MargCalError
 from ros_margcal.fitting import METHODS, SUPPORTED, fit, residuals
-from ros_margcal.fitting_core import check_geometry, solve_spd3
+from ros_margcal.fitting_core import check_geometry, gn_covariance, solve_spd3
 
 Array = np.ndarray
 
@@ -189,6 +189,17 @@ def test_closed_form_solve_matches_lapack_and_rejects_singular(rng: np.random.Ge
     with pytest.raises(DegenerateDataError, match="normal equations are singular"):
         solve_spd3(np.outer([1.0, 2.0, 3.0], [1.0, 2.0, 3.0]), b)
 
+
+
+@pytest.mark.parametrize("p", [6, 9, 10])
+def test_gn_covariance_is_the_scaled_inverse_and_none_when_singular(p: int, rng: np.random.Generator) -> None:
+    """The Cholesky-based covariance equals s^2 inv(J^T J) and is None for a rank-deficient J^T J."""
+    jt = rng.normal(size=(p, 50)) * rng.uniform(0.1, 10.0, size=(p, 1))
+    cov = gn_covariance(jt @ jt.T, 0.25)
+    assert cov is not None
+    np.testing.assert_allclose(cov, 0.25 * np.linalg.inv(jt @ jt.T), rtol=1e-10, atol=0)
+    jt[-1] = 0.0  # a parameter the residuals do not depend on: singular normal matrix
+    assert gn_covariance(jt @ jt.T, 0.25) is None
 
 @settings(max_examples=25, deadline=None)
 @given(
