@@ -31,6 +31,7 @@ train-on-one / test-on-the-other protocol.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import logging
 import math
@@ -217,10 +218,34 @@ def _indicator_frame(points: Array) -> tuple[Array, float]:
     return center, float(np.linalg.norm(points - center, axis=1).mean()) or 1.0
 
 
+_READOUT_RANDOM = ("noise", "quantization")
+_STATIC_EFFECTS = frozenset(name for name, e in EFFECTS.items() if not e.varying and name not in _READOUT_RANDOM)
+"""Effects that are a property of the sensor (the same at every instant, not random read-out): the
+sensor that defines the label carries them."""
+
+
+def _reference_points(truth: Calibration, dirs: Array, rng: np.random.Generator, static: dict[str, float],
+                      t: Array | None = None) -> Array:
+    """The label's test points for a sensor with effects ``static`` (at times ``t`` when given): the
+    noiseless readings of ``dirs`` with the effects, replaced by their best ellipsoid (``sym`` fit) read
+    at the same directions — the error the diagnosis measures on a recording
+    (``diagnosis.stages.validator_errors``) is against that recording's best fit over all its samples
+    too. Falls back to the readings themselves when they cannot be fitted."""
+    raw = simulate(truth, dirs, noise=0.0, rng=rng, t=t, effects=static).raw
+    try:
+        ref = fit(raw, model="sym", method="lm", norm=None)
+    except MargCalError as exc:
+        log.debug("label reference with %s not fitted (%s): using the readings", static, exc)
+        return raw
+    u = dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
+    out: Array = ref.inverse_apply(u * ref.norm)
+    return out
+
+
 def make_set(seed: int, index: int, *, n_min: int = 40, n_max: int = 600, noise_range: tuple[float, float] = (1e-3, 5e-3),
              n_test: int = 400, model: str = "sym", method: str = "lm", loss: str = "linear",
              pattern: str | None = None, n: int | None = None, params: dict[str, Any] | None = None,
-             effects: dict[str, float] | None = None) -> dict[str, Any]:
+             effects: dict[str, float] | None = None, duration_s: float | None = None) -> dict[str, Any]:
     """Simulate, fit, label and describe set ``index`` of the corpus with ``seed``.
 
     Args:
@@ -231,8 +256,16 @@ def make_set(seed: int, index: int, *, n_min: int = 40, n_max: int = 600, noise_
         model, method, loss: the fit whose error is the label (``fitting.fit``).
         pattern, n, params: force the coverage pattern, size and parameters (else random).
         effects: simulator effects (name -> magnitude) added to the set, those that apply to the
-            set's sensor kind (the diagnosis retrains the validator with the effect it found); the
-            held-out test set stays effect-free, so the label is the error against the true sensor.
+            set's sensor kind (the diagnosis retrains the validator with the effect it found). The
+            label's sensor carries the static ones (``_STATIC_EFFECTS``, with the same random draws
+            as the set): the error is against that sensor's best ellipsoid (``_reference_points``),
+            as the diagnosis measures it on a recording; effects that vary in time and the read-out
+            ones stay out of the label. Without effects the set is exactly as before.
+        duration_s: with effects, the time span of the set (its samples evenly spread over it) and of
+            the label's sensor, which then carries the effects that vary in time too (a drift over
+            this span): the set is then like one drawn from a recording of that length, and the
+            label its error against the best fit of the whole recording. None: samples 1 s apart
+            and only the static effects in the label.
 
     Returns:
         A dict with ``features`` (len(FEATURES),), ``error``, ``baselines`` (len(BASELINES),),
@@ -249,8 +282,18 @@ def make_set(seed: int, index: int, *, n_min: int = 40, n_max: int = 600, noise_
     n = rand_n if n is None else int(n)
     dirs = directions(pattern, n, rng, **(params or {}))
     applied = {k: float(m) for k, m in (effects or {}).items() if kind in EFFECTS[k].sensors and m}
-    points = simulate(truth, dirs, noise=noise, rng=rng, effects=applied or None).raw
-    test_raw = simulate(truth, directions("uniform", n_test, rng), noise=0.0, rng=rng).raw
+    if duration_s is None:
+        label_fx = {k: m for k, m in applied.items() if k in _STATIC_EFFECTS}
+        t_set = t_test = None
+    else:
+        label_fx = {k: m for k, m in applied.items() if k not in _READOUT_RANDOM}
+        t_set, t_test = np.linspace(0.0, duration_s, n), np.linspace(0.0, duration_s, n_test)
+    fx_rng = copy.deepcopy(rng) if label_fx else None  # the label's sensor: the same effect draws as the set's
+    points = simulate(truth, dirs, noise=noise, rng=rng, t=t_set, effects=applied or None).raw
+    test_dirs = directions("uniform", n_test, rng)
+    test_raw = simulate(truth, test_dirs, noise=0.0, rng=rng).raw
+    if fx_rng is not None:
+        test_raw = _reference_points(truth, test_dirs, fx_rng, label_fx, t_test)
     cal: Calibration | None
     try:
         cal = fit(points, model=model, method=method, norm=None, loss=loss)
@@ -298,7 +341,8 @@ def build_corpus(n_sets: int, seed: int = 0, *, progress: bool | TextIO = False,
         n_sets: number of sets (>= 2, so both groups of the swap are populated).
         seed: corpus seed.
         progress: True (stderr) or a stream to show a ``\\r`` counter on.
-        **options: passed on to ``make_set`` (n_min, n_max, noise_range, n_test, model, method, effects).
+        **options: passed on to ``make_set`` (n_min, n_max, noise_range, n_test, model, method, effects,
+            duration_s).
     """
     if n_sets < 2:
         msg = f"n_sets must be >= 2, got {n_sets}"

@@ -11,8 +11,8 @@ the effects real sensors show and the baseline lacks (the list of DESIGN.md, "Th
 1. field side (body frame): ``disturbance`` / ``motion_leak`` add a vector, ``soft_iron`` deforms the
    field ``h -> (I + m S) h``, ``misalignment`` rotates it into the sensor frame;
 2. sensor model: ``nonorthogonality`` (skewed axes), gains ``W^-1`` (with the ``temperature`` gain
-   change), ``nonlinearity`` (cubic term), offset ``b`` (plus ``bias_drift`` and the ``temperature``
-   offset);
+   change), ``nonlinearity`` (cubic term), offset ``b`` (plus ``bias_drift``, ``hard_iron_jump`` and
+   the ``temperature`` offset);
 3. read-out: noise (baseline and the ``noise`` effect), ``saturation`` (clipping), ``quantization``.
 
 Every random quantity of an effect is drawn from its own generator seeded from one draw of the
@@ -56,6 +56,8 @@ class Effect:
         magnitude_range: the range a diagnosis should search.
         stage: "field" (physical vector), "sensor" (sensor model) or "readout".
         limit: magnitudes must stay below this (inf when unbounded).
+        varying: the effect changes in time (drift, warm-up, bursts, a jump): a property of the
+            moment, not of the sensor; the others are the same at every instant.
     """
 
     name: str
@@ -68,6 +70,7 @@ class Effect:
     magnitude_range: tuple[float, float]
     stage: str = "sensor"
     limit: float = math.inf
+    varying: bool = False
 
 
 _BOTH = ("mag", "accel")
@@ -81,7 +84,7 @@ EFFECTS: dict[str, Effect] = {
                "quantization", "fraction of norm (LSB step)", 0.002, (0.0, 0.02), "readout"),
         Effect("nonorthogonality", "sensor axes skewed: y tilted towards x, z towards x and y, by up to magnitude "
                "degrees each (random share 0.5-1, random sign); a non-symmetric mixing", _BOTH, True,
-               "ellipsoid_shape", "deg (largest axis skew)", 1.0, (0.0, 5.0), "sensor", 30.0),
+               "ellipsoid_shape", "deg (largest axis skew)", 1.0, (0.0, 10.0), "sensor", 30.0),
         Effect("soft_iron", "field deformed by I + magnitude S, S a random symmetric matrix of spectral norm 1",
                ("mag",), True, "ellipsoid_shape", "fraction (spectral norm of the deformation)", 0.05, (0.0, 0.3),
                "field", 1.0),
@@ -90,23 +93,28 @@ EFFECTS: dict[str, Effect] = {
                "field"),
         Effect("bias_drift", "offset drifts linearly at magnitude x field radius per minute along a random "
                "direction, plus a random walk of rms 0.5 x that per sqrt(minute) per axis", _BOTH, True,
-               "bias_drift", "fraction of norm per minute", 0.01, (0.0, 0.1), "sensor"),
+               "bias_drift", "fraction of norm per minute", 0.01, (0.0, 0.1), "sensor", varying=True),
         Effect("temperature", "offset (random direction) and per-axis gains (random signs) linear in temperature "
                "about its mean: magnitude x field radius per K and magnitude per K; a warm-up curve of 25->40 °C "
                "is synthesised when no temperature is given", _BOTH, True, "temperature",
-               "fraction of norm per K", 0.002, (0.0, 0.01), "sensor"),
+               "fraction of norm per K", 0.002, (0.0, 0.03), "sensor", varying=True),
         Effect("disturbance", "transient field bursts: about 5 % of the time in windows of 1-3 s, an extra "
                "vector of random direction and 0.5-1 x magnitude x norm is added", ("mag",), True, "disturbance",
-               "fraction of norm (burst amplitude)", 0.3, (0.0, 2.0), "field"),
+               "fraction of norm (burst amplitude)", 0.3, (0.0, 2.0), "field", varying=True),
         Effect("motion_leak", "linear acceleration left in: about 20 % of the time in windows of 0.2-1 s, an "
                "extra acceleration of random direction and 0.5-1 x magnitude x norm", ("accel",), True,
-               "motion_leak", "fraction of norm (acceleration amplitude)", 0.05, (0.0, 0.5), "field"),
+               "motion_leak", "fraction of norm (acceleration amplitude)", 0.05, (0.0, 0.5), "field",
+               varying=True),
         Effect("saturation", "readings clipped at a full scale of (1 - magnitude) x the largest reading the "
                "true sensor can give", _BOTH, True, "saturation", "fraction of the range clipped", 0.1,
                (0.0, 0.3), "readout", 1.0),
         Effect("nonlinearity", "cubic term per axis, u_i + magnitude c_i u_i^3 / r_i^2 (c_i = ±0.5-1, r_i the "
                "axis' full deflection): magnitude is the relative deviation at full deflection", _BOTH, True,
                "nonlinearity", "fraction at full deflection", 0.01, (0.0, 0.05), "sensor"),
+        Effect("hard_iron_jump", "the offset steps once by magnitude x field radius along a random direction, "
+               "at a random time in the middle half of the recording (a magnetised part moved or was "
+               "attached on the platform)", ("mag",), True, "hard_iron_jump", "fraction of norm (step size)", 0.1,
+               (0.0, 1.0), "sensor", varying=True),
     )
 }
 """The registry of effects, in the order ``simulate`` applies them within a stage."""
@@ -228,8 +236,20 @@ def sensor_model(
         r = sub("bias_drift")
         direction = unit_vectors(r.normal(size=3))
         minutes = (t - t[0]) / 60.0
-        steps = r.normal(size=(n, 3)) * np.sqrt(np.diff(minutes, prepend=minutes[0]).clip(0.0))[:, None]
-        offset += m("bias_drift", 0.0) * r_raw * (direction * minutes[:, None] + 0.5 * np.cumsum(steps, axis=0))
+        # the random walk lives on a 1-s time grid (interpolated at the samples), so it is a function of
+        # time: two recordings of the same sensor over the same span share it whatever their rates
+        n_knots = math.ceil(60.0 * float(minutes[-1])) + 2 if n else 2
+        knots = np.arange(n_knots) / 60.0
+        walk = np.cumsum(r.normal(size=(n_knots, 3)) * math.sqrt(1.0 / 60.0), axis=0)
+        walk -= walk[0]
+        steps = np.column_stack([np.interp(minutes, knots, walk[:, a]) for a in range(3)])
+        offset += m("bias_drift", 0.0) * r_raw * (direction * minutes[:, None] + 0.5 * steps)
+        varying = True
+    if m("hard_iron_jump", 0.0) > 0 and n > 0:
+        r = sub("hard_iron_jump")
+        direction = unit_vectors(r.normal(size=3))
+        t_jump = t[0] + r.uniform(0.25, 0.75) * (t[-1] - t[0])
+        offset += m("hard_iron_jump", 0.0) * r_raw * direction * (t >= t_jump)[:, None]
         varying = True
     if extra_offset is not None:
         offset += extra_offset

@@ -12,7 +12,15 @@ import pytest
 
 from ros_margcal.baselines import BASELINES
 from ros_margcal.cli import validator as cli
-from ros_margcal.corpus import FAILED_ERROR, FEATURES, Corpus, build_corpus, information_indicator, make_set
+from ros_margcal.corpus import (
+    _STATIC_EFFECTS,
+    FAILED_ERROR,
+    FEATURES,
+    Corpus,
+    build_corpus,
+    information_indicator,
+    make_set,
+)
 from ros_margcal.errors import CalibrationFileError, ConfigError
 from ros_margcal.simulation import EFFECTS, directions
 from ros_margcal.validation import FuzzyValidator, load_default_validator, roc_auc
@@ -193,3 +201,32 @@ def test_make_set_applies_only_effects_of_its_sensor_kind() -> None:
     assert np.array_equal(make_set(5, 0, n=200, pattern="uniform", effects={"soft_iron": 0.0})["points"], plain["points"])
     shaped = make_set(5, 0, n=200, pattern="uniform", effects={"nonorthogonality": 2.0})
     assert np.abs(shaped["points"] - plain["points"]).max() > 1e-3 * np.abs(plain["points"]).max()
+
+
+def test_static_effects_enter_the_label() -> None:
+    """The label's sensor carries a static effect with the set's own random draws: a well-covered set
+    of a sensor with skewed axes is labelled good, though its fit misses the effect-free sensor."""
+    assert {"soft_iron", "nonorthogonality", "nonlinearity", "saturation", "misalignment"} <= _STATIC_EFFECTS
+    assert not {"noise", "quantization", "bias_drift", "temperature", "disturbance", "hard_iron_jump"} & _STATIC_EFFECTS
+    plain = make_set(5, 0, n=600, pattern="uniform")
+    shaped = make_set(5, 0, n=600, pattern="uniform", effects={"nonorthogonality": 4.0})
+    assert shaped["fit"] is not None and plain["fit"] is not None
+    # the effect-free sensor, read at uniform directions through the plain set's (near-perfect) fit
+    u = directions("uniform", 400, np.random.default_rng(1))
+    raw = plain["fit"].inverse_apply(u * plain["fit"].norm)
+    rel = np.linalg.norm(shaped["fit"].apply(raw), axis=1) / shaped["fit"].norm - 1.0
+    assert float(np.sqrt(np.mean(rel**2))) > 10 * shaped["error"]
+    assert shaped["error"] < 3 * plain["error"] + 1e-3
+
+
+def test_duration_puts_a_drift_into_the_label_sensor() -> None:
+    """With a time span, a set with a drift is labelled against the same drifting sensor's best fit
+    over that span (as the diagnosis measures a recording), not against the drift-free truth; without
+    effects the span changes nothing."""
+    plain = make_set(5, 0, n=600, pattern="uniform")
+    same = make_set(5, 0, n=600, pattern="uniform", duration_s=120.0)
+    assert same["error"] == plain["error"] and np.array_equal(same["points"], plain["points"])
+    spanned = make_set(5, 0, n=600, pattern="uniform", effects={"bias_drift": 0.05}, duration_s=120.0)
+    unspanned = make_set(5, 0, n=600, pattern="uniform", effects={"bias_drift": 0.05})
+    assert spanned["error"] < 0.2 * unspanned["error"]  # 10 min at 1 s steps vs the drift shared over 2 min
+    assert spanned["error"] < 0.02

@@ -17,9 +17,10 @@ from ros_margcal.diagnosis import (
     stage_gaps,
     write_report,
 )
-from ros_margcal.diagnosis.stages import sh_basis, sh_power
+from ros_margcal.diagnosis.stages import sh_basis, sh_power, stage_features
+from ros_margcal.diagnosis.twin import median_step_deg, subsample
 from ros_margcal.errors import ConfigError, DegenerateDataError, InputError, RecordingError
-from ros_margcal.simulation import Recording, magnetometer_stream, random_sensor
+from ros_margcal.simulation import Recording, directions, magnetometer_stream, random_sensor, simulate
 
 NOISE = 0.005
 
@@ -59,6 +60,49 @@ def test_stage_gaps_are_z_scores_with_floors() -> None:
     assert g["residual_size"] == pytest.approx(np.sqrt((2.0**2 + 100.0**2) / 2))
 
 
+def _time_features_of(effects: dict[str, float] | None) -> np.ndarray:
+    rec, _ = _stream(effects, seed=5, duration=60.0)
+    f = stage_features(rec.t, rec.raw, rec.temp, subsample(len(rec.t), 3000))
+    return f.values["residual_time"]
+
+
+def test_time_features_tell_offset_drift_from_gain_change_and_jump() -> None:
+    """Residual-time features: a drift moves the offset (degree 1) not the gains; a temperature
+    coefficient moves the gains too; one step explains a jump better than smooth terms do."""
+    base, drift, warm, jump = (_time_features_of(e) for e in (None, {"bias_drift": 0.02}, {"temperature": 0.004},
+                                                                {"hard_iron_jump": 0.15}))
+    offset, gain, step = 0, 1, 4
+    assert drift[offset] > base[offset] + 1.0  # ten times the baseline's slow offset term
+    assert warm[gain] > drift[gain] + 0.3  # gains move with the temperature (relative to the offset), not with a drift
+    assert jump[step] < -0.5 < 0.5 < drift[step]  # one step explains a jump; smooth terms explain a drift
+    assert abs(base[step]) < 0.3
+    assert len(warm) == len(drift) + 2  # the temperature column adds its two features
+
+
+def test_median_step_tells_a_time_series_from_a_pattern() -> None:
+    """Consecutive samples of a turning sensor are close; a uniform pattern jumps ~90 degrees."""
+    rec, _ = _stream(None)
+    assert median_step_deg(rec.raw - rec.truth.offset) < 2.0
+    assert median_step_deg(directions("uniform", 500, np.random.default_rng(0))) > 60.0
+
+
+def test_recording_without_time_continuity_skips_rest_noise(capsys: pytest.CaptureFixture[str]) -> None:
+    """Directions in random order (a pattern, not a time series) are diagnosed with the rest-noise
+    stage skipped and the reason given, not a failure; the shape effect is still found."""
+    from ros_margcal.diagnosis import summary
+
+    rng = np.random.default_rng(11)
+    truth = random_sensor(rng, "mag", model="diag")
+    rec = simulate(truth, directions("uniform", 800, rng), noise=NOISE, rng=rng, effects={"soft_iron": 0.1})
+    d = diagnose(rec, sensor="mag", n_seeds=2, n_spread=4)
+    assert "rest_noise" in d.skipped and "continuity" in d.skipped["rest_noise"]
+    assert "rest_noise" not in d.stages_before
+    assert d.twin is not None and d.twin.noise == pytest.approx(NOISE, rel=0.3)  # from the fit residual
+    assert d.cause == "ellipsoid_shape"
+    assert "skipped" in summary(d)
+    assert d.to_dict()["skipped"][0]["stage"] == "rest_noise"
+
+
 def test_twin_of_a_baseline_recording_is_within_its_spread() -> None:
     """A baseline-only recording has every stage gap small against its own twin."""
     rec, sigma = _stream(None)
@@ -80,11 +124,12 @@ def test_baseline_recording_gives_none() -> None:
 
 @pytest.mark.parametrize(
     ("effect", "magnitude", "expected"),
-    [("quantization", 0.004, "quantization"), ("soft_iron", 0.1, "ellipsoid_shape"), ("disturbance", 0.6, "disturbance")],
+    [("quantization", 0.004, "quantization"), ("soft_iron", 0.1, "ellipsoid_shape"), ("disturbance", 0.6, "disturbance"),
+     ("hard_iron_jump", 0.15, "hard_iron_jump")],
 )
 def test_withheld_effect_is_attributed(effect: str, magnitude: float, expected: str) -> None:
     """A recording with a withheld effect at a clear magnitude is attributed to it (or its group) and the gap shrinks."""
-    rec, sigma = _stream({effect: magnitude}, duration=60.0 if effect == "disturbance" else 30.0)
+    rec, sigma = _stream({effect: magnitude}, duration=60.0 if effect in ("disturbance", "hard_iron_jump") else 30.0)
     d = diagnose(rec, sensor="mag", rest_noise=sigma, n_seeds=2, n_spread=4)
     assert d.cause == expected
     assert d.shrink > 0.6
@@ -172,3 +217,16 @@ def test_real_recording_holdout_shrinks(real_data_dir: Path) -> None:
     assert h["fit"].cause == "ellipsoid_shape"  # the README: clear cross-axis terms
     assert h["gap_after"] < 0.8 * h["gap_before"]
     assert h["shrink"] > 0.2
+
+
+def test_drift_and_temperature_are_one_group_only_without_temperature() -> None:
+    """Without a temperature column bias drift and temperature are reported as one group; with it, apart."""
+    from ros_margcal.diagnosis.effects import DRIFT_GROUP, applicable_effects, effective_group, equivalent_groups
+    from ros_margcal.simulation import EFFECTS
+
+    assert effective_group(EFFECTS["temperature"], False) == effective_group(EFFECTS["bias_drift"], False) == DRIFT_GROUP
+    assert effective_group(EFFECTS["temperature"], True) != effective_group(EFFECTS["bias_drift"], True)
+    assert effective_group(EFFECTS["hard_iron_jump"], False) == "hard_iron_jump"
+    observable, _ = applicable_effects("mag")
+    assert {"group": DRIFT_GROUP, "effects": ["bias_drift", "temperature"]} in equivalent_groups(observable, False)
+    assert all(g["group"] != DRIFT_GROUP for g in equivalent_groups(observable, True))

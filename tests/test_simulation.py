@@ -355,6 +355,27 @@ def test_temperature_effect_follows_the_temperature() -> None:
     assert np.corrcoef(shift, np.abs(ramp - ramp.mean()))[0, 1] > 0.7
 
 
+def test_hard_iron_jump_steps_the_offset_once() -> None:
+    """The offset steps once, in the middle half of the recording, by magnitude x field radius."""
+    truth, base, rec = _pair("hard_iron_jump", 0.2)
+    assert rec.true_offset is not None
+    step = np.linalg.norm(rec.true_offset - truth.offset, axis=1)
+    r_raw = truth.norm / abs(np.linalg.det(truth.matrix)) ** (1.0 / 3.0)
+    moved = step > 0
+    first = int(np.argmax(moved))
+    assert moved[first:].all() and not moved[:first].any()  # one step, kept to the end
+    assert 0.25 <= (base.t[first] - base.t[0]) / (base.t[-1] - base.t[0]) <= 0.75
+    np.testing.assert_allclose(step[moved], 0.2 * r_raw, rtol=1e-9)
+    np.testing.assert_allclose(rec.raw - base.raw, rec.true_offset - truth.offset, atol=1e-12 * truth.norm)
+
+
+def test_hard_iron_jump_is_magnetometer_only() -> None:
+    """A hard-iron jump is a magnetic effect: an accelerometer refuses it."""
+    acc = random_sensor(_rng(2), "accel")
+    with pytest.raises(ConfigError, match="applies to"):
+        simulate(acc, directions("uniform", 10, _rng()), rng=_rng(), effects={"hard_iron_jump": 0.1})
+
+
 @pytest.mark.parametrize(("name", "share"), [("disturbance", 0.05), ("motion_leak", 0.2)])
 def test_bursts_touch_about_their_share_of_samples(name: str, share: float) -> None:
     """Disturbances / leaked motion hit about their documented share of the time, in windows."""

@@ -42,7 +42,8 @@ def register(subparsers: Any) -> None:
                    help="also fit on the first SPLIT of the recording (in time) and report the shrink on the rest")
     p.add_argument("--n-fit", type=int, default=6000, help="samples used by the fitting stages (default 6000)")
     p.add_argument("--no-validator", action="store_true", help="skip the validator stage and the retraining")
-    p.add_argument("--retrain-sets", type=int, default=120, help="simulated sets for the retrained validator")
+    p.add_argument("--retrain-sets", type=int, default=400,
+                   help="simulated sets for the retrained validators, with and without the effect (default 400)")
     p.set_defaults(func=run)
     b = subparsers.add_parser("diagnose-benchmark", help="withheld-effect benchmark of the diagnosis (= margcal bench diagnosis)")
     b.add_argument("bench_args", nargs=argparse.REMAINDER, help="passed on, e.g. --quick")

@@ -7,8 +7,9 @@ observable effect of the registry (``effects.rank_effects``) and decides:
 - ``where``: the stage with the largest gap;
 - ``cause``: ``"none"`` when the recording is within the baseline's spread (every stage gap below
   ``NONE_GAP``), else the effect whose fitted magnitude removes the largest share of the gap — or
-  its group's name when the group holds several applicable effects (``ellipsoid_shape``: they cannot
-  be told apart, so no guess is made between them); ``"unexplained"`` when the gap is clear but no
+  its group's name when the group holds several applicable effects (``ellipsoid_shape``, and
+  ``slow_drift`` = bias drift or temperature on a recording without a temperature column: they
+  cannot be told apart, so no guess is made between them); ``"unexplained"`` when the gap is clear but no
   effect removes ``MIN_SHRINK`` of it;
 - ``shrink``: the share of the overall gap that effect removes, and the stage gaps after it.
 
@@ -30,7 +31,15 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import ConfigError, MargCalError
-from .effects import EffectFit, applicable_effects, equivalent_groups, gap_with, overall_gap, rank_effects
+from .effects import (
+    EffectFit,
+    applicable_effects,
+    effective_group,
+    equivalent_groups,
+    gap_with,
+    overall_gap,
+    rank_effects,
+)
 from .stages import stage_gaps, validator_errors
 from .twin import DEFAULT_N_FIT, Baseline, Twin, build_twin, mean_features
 
@@ -71,6 +80,7 @@ class Diagnosis:
     twin: Twin | None = field(default=None, repr=False)
     baseline: Baseline | None = field(default=None, repr=False)
     downstream: dict[str, Any] = field(default_factory=dict)
+    skipped: dict[str, str] = field(default_factory=dict)
 
     @property
     def best(self) -> EffectFit | None:
@@ -97,7 +107,7 @@ class Diagnosis:
             "none_gap": NONE_GAP,
             "stages": [{"name": k, "gap": v, "gap_after": self.stages_after.get(k, v)} for k, v in self.stages_before.items()],
             "effects": [{"name": f.name, "group": f.group, "magnitude": f.magnitude, "unit": f.unit,
-                         "gap_before": f.gap_before, "gap_after": f.gap_after, "shrink": f.shrink,
+                         "gap_before": f.gap_before, "gap_after": f.gap_after, "shrink": f.shrink, "n_seeds": f.n_seeds,
                          "stages_after": f.stages_after} for f in self.effects],
             "equivalent": self.equivalent,
             "close_calls": self.close_calls(),
@@ -109,6 +119,7 @@ class Diagnosis:
             "rest_noise_fraction": self.noise,
             "seconds": self.seconds,
             "downstream": self.downstream,
+            "skipped": [{"stage": k, "reason": v} for k, v in self.skipped.items()],
         }
 
 
@@ -172,11 +183,14 @@ def diagnose(
                       validator=validator)
     base = twin.spread(n_spread)
     seeds = base.seeds[:n_seeds]
-    mean, _ = mean_features(base.features[:n_seeds])
-    before = stage_gaps(twin.features_rec.values, mean, base.sd)
+    before = stage_gaps(twin.features_rec.values, base.mean, base.sd)  # against every seed of the spread
     gap_before = overall_gap(before)
     observable, hidden = applicable_effects(sensor)
-    fits = rank_effects(twin, base, observable, seeds=seeds, progress=progress)
+    has_temp = twin.temp is not None and bool(np.ptp(twin.temp) > 0)
+    fits = rank_effects(twin, base, observable, seeds=seeds, progress=progress, refine_seeds=base.seeds)
+    group_of = {e.name: effective_group(e, has_temp) for e in observable}
+    for f in fits:
+        f.group = group_of[f.name]
     where = max(before, key=lambda k: before[k]) if before else ""
     best = fits[0] if fits else None
     top = max(before.values(), default=0.0)
@@ -186,14 +200,15 @@ def diagnose(
     elif best.shrink < MIN_SHRINK:
         cause, members, shrink, after, stages_after = "unexplained", [], best.shrink, best.gap_after, best.stages_after
     else:
-        members = sorted(e.name for e in observable if e.group == best.group)
+        members = sorted(e.name for e in observable if group_of[e.name] == best.group)
         cause = best.group if len(members) > 1 else best.name
         shrink, after, stages_after = best.shrink, best.gap_after, best.stages_after
     return Diagnosis(
         where=where, cause=cause, cause_effects=members, shrink=shrink, gap_before=gap_before, gap_after=after,
-        stages_before=before, stages_after=stages_after, effects=fits, equivalent=equivalent_groups(observable),
+        stages_before=before, stages_after=stages_after, effects=fits, equivalent=equivalent_groups(observable, has_temp),
         unobservable=[e.name for e in hidden], null_gaps=_null_gaps(base), sensor=sensor, n_samples=len(t),
         n_fit=int(twin.sub.size), noise=twin.noise, seconds=time.monotonic() - t0, twin=twin, baseline=base,
+        skipped=dict(twin.skipped),
     )
 
 
@@ -236,42 +251,63 @@ def diagnose_holdout(recording: Any, *, split: float = 0.5, **options: Any) -> d
             "stages_before": before2, "stages_after": after2}
 
 
-def validator_downstream(diag: Diagnosis, validator: object | None, *, n_sets: int = 120, seed: int = 0) -> dict[str, Any]:
+def _retrain(validator: object, n_sets: int, seed: int, effects: dict[str, float] | None, duration_s: float) -> object:
+    """A validator like ``validator`` (inputs, partition, training options from its metadata) trained
+    on ``n_sets`` simulated sets with ``effects``, each spread over ``duration_s`` like the recording's."""
+    from .. import corpus  # local: the corpus pulls in the baselines, only needed here
+    from ..validation import FuzzyValidator
+
+    built = corpus.build_corpus(n_sets, seed, effects=effects, duration_s=duration_s if effects else None)
+    inputs = tuple(getattr(validator, "inputs", ("c_norm", "d_norm")))
+    n_mf = getattr(validator, "n_mf", 10)
+    n_mf = tuple(int(k) for k in np.atleast_1d(n_mf)) if np.ndim(n_mf) else int(n_mf)
+    meta = dict(getattr(validator, "metadata", {}) or {})
+    accepted = inspect.signature(FuzzyValidator.fit).parameters
+    kw = {k: meta[k] for k in ("repeats", "l_rate", "consequents", "ridge", "max_fpr") if k in meta and k in accepted}
+    out = FuzzyValidator(inputs=inputs, n_mf=n_mf)
+    return out.fit(built.matrix(list(inputs)), built.error, seed=seed, **kw)
+
+
+def validator_downstream(diag: Diagnosis, validator: object | None, *, n_sets: int = 400, seed: int = 0) -> dict[str, Any]:
     """What the chosen effect does to the validator: predicted error before and after retraining.
 
     The validator's prediction on a 300-sample set of the recording is compared with the measured
-    error (``stages.validator_errors``). Retraining on simulated sets *with* the effect needs
-    ``corpus.make_set`` to accept ``effects=``; when it does not, the result says so.
+    error (``stages.validator_errors``): ``before`` is ``validator`` itself; ``after`` is the same
+    kind of validator retrained on ``n_sets`` simulated sets *with* the effect at its fitted magnitude
+    (``corpus.build_corpus(effects=...)``), and ``control`` retrained on as many sets *without* it, so
+    the change the effect makes is not confused with the change a smaller training corpus makes.
+    ``log_error_*`` is ``|log10(measured / predicted)|`` (0 is a perfect prediction).
     """
     twin = diag.twin
     if validator is None or twin is None:
         return {"available": False, "reason": "no validator"}
-    from .. import corpus  # local: the corpus pulls in the baselines, only needed here
-
     pts = twin.raw[twin.sub]
     pick = np.linspace(0, len(pts) - 1, min(300, len(pts))).astype(np.intp)
     try:
         predicted, measured = validator_errors(pts[pick], twin.best, validator)
     except MargCalError as exc:
         return {"available": False, "reason": f"validator stage failed: {exc}"}
-    out: dict[str, Any] = {"predicted_before": predicted, "measured": measured}
+
+    def log_error(pred: float) -> float:
+        return abs(math.log10(max(measured, 1e-12) / max(pred, 1e-12)))
+
+    out: dict[str, Any] = {"predicted_before": predicted, "measured": measured, "log_error_before": log_error(predicted)}
     best = diag.best
     if diag.cause == "none" or best is None:
-        out.update(available=True, predicted_after=predicted, note="cause is none: no retraining")
+        out.update(available=True, predicted_after=predicted, log_error_after=log_error(predicted),
+                   note="cause is none: no retraining")
         return out
-    if "effects" not in inspect.signature(corpus.make_set).parameters:
-        out.update(available=False, reason="corpus.make_set has no effects= option: cannot simulate training sets "
-                   "with the effect (missing in corpus.py)")
-        return out
-    from ..validation import FuzzyValidator
-
-    built = corpus.build_corpus(n_sets, seed, effects={best.name: best.magnitude})
-    inputs = tuple(getattr(validator, "inputs", ("c_norm", "d_norm")))
-    retrained = FuzzyValidator(inputs=inputs).fit(built.matrix(list(inputs)), built.error, seed=seed)
-    predicted_after, _ = validator_errors(pts[pick], twin.best, retrained)
-    out.update(available=True, predicted_after=predicted_after,
+    try:
+        span = float(twin.t[twin.sub][-1] - twin.t[twin.sub][0])  # the 300-sample set spans the whole recording
+        with_effect = _retrain(validator, n_sets, seed, {best.name: best.magnitude}, span)
+        control = _retrain(validator, n_sets, seed, None, span)
+        predicted_after, _ = validator_errors(pts[pick], twin.best, with_effect)
+        predicted_control, _ = validator_errors(pts[pick], twin.best, control)
+    except MargCalError as exc:
+        return {**out, "available": False, "reason": f"retraining failed: {exc}"}
+    out.update(available=True, effect=best.name, magnitude=best.magnitude, n_sets=n_sets,
+               predicted_after=predicted_after, predicted_control=predicted_control,
                error_ratio_before=measured / max(predicted, 1e-12),
-               error_ratio_after=measured / max(predicted_after, 1e-12), n_sets=n_sets,
-               log_error_before=abs(math.log10(max(measured, 1e-12) / max(predicted, 1e-12))),
-               log_error_after=abs(math.log10(max(measured, 1e-12) / max(predicted_after, 1e-12))))
+               error_ratio_after=measured / max(predicted_after, 1e-12),
+               log_error_after=log_error(predicted_after), log_error_control=log_error(predicted_control))
     return out

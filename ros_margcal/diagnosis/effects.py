@@ -7,10 +7,14 @@ those twins, measured with the *baseline's* spread (``stages.stage_gaps``), is a
 the overall gap is the RMS of the stage gaps. The magnitude is found by a 1-D search: a log-spaced
 grid over the effect's ``magnitude_range`` then a golden-section refinement (in ``log m``) around the
 best grid point. ``shrink = 1 - gap_after / gap_before`` is the share of the gap the effect removes.
+The leading effects are then evaluated once more at their fitted magnitudes on every seed of the
+baseline's spread (``rank_effects(refine_seeds=...)``), so that two effects that both remove most of
+the gap are compared on more twins than the search used.
 
 Effects with ``observable=False`` (misalignment) cannot change a norm-based recording and are not
 fitted but listed as unobservable; effects sharing a ``group`` (non-orthogonality and symmetric soft
-iron: the same ellipsoid family) are reported together as equivalent.
+iron: the same ellipsoid family) are reported together as equivalent, and so are bias drift and
+temperature on a recording without a temperature column (``effective_group``).
 """
 
 from __future__ import annotations
@@ -23,10 +27,20 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..simulation import EFFECTS, Effect
-from .stages import stage_gaps
+from .stages import STAGE_FLOORS, stage_gaps
 from .twin import Baseline, Twin, mean_features
 
-__all__ = ["EffectFit", "applicable_effects", "equivalent_groups", "fit_effect", "gap_with", "overall_gap", "rank_effects"]
+__all__ = [
+    "DRIFT_GROUP",
+    "EffectFit",
+    "applicable_effects",
+    "effective_group",
+    "equivalent_groups",
+    "fit_effect",
+    "gap_with",
+    "overall_gap",
+    "rank_effects",
+]
 
 log = logging.getLogger(__name__)
 
@@ -36,6 +50,13 @@ _GRID = 7
 _GOLDEN_STEPS = 6
 _LOW_DECADES = 3.0  # the grid starts this many decades below the top of the magnitude range
 _INV_PHI = (math.sqrt(5.0) - 1.0) / 2.0
+_N_REFINE = 3
+_OWN_SPREAD = True
+_MAX_WIDEN = 2.0
+DRIFT_GROUP = "slow_drift"
+"""Group of ``bias_drift`` and ``temperature`` on a recording without a temperature column."""
+_DRIFT_MEMBERS = ("bias_drift", "temperature")
+
 
 
 @dataclass
@@ -52,6 +73,7 @@ class EffectFit:
         shrink: ``1 - gap_after / gap_before`` (0 when there is no gap).
         stages_after: stage -> gap with the effect.
         curve: (magnitude, gap) pairs evaluated by the search.
+        n_seeds: twin seeds behind ``gap_after`` and ``shrink``.
     """
 
     name: str
@@ -63,6 +85,7 @@ class EffectFit:
     shrink: float
     stages_after: dict[str, float] = field(default_factory=dict)
     curve: list[tuple[float, float]] = field(default_factory=list)
+    n_seeds: int = 0
 
 
 def overall_gap(stages: dict[str, float]) -> float:
@@ -78,21 +101,52 @@ def applicable_effects(sensor: str) -> tuple[list[Effect], list[Effect]]:
     return [e for e in eff if e.observable], [e for e in eff if not e.observable]
 
 
-def equivalent_groups(effects: list[Effect]) -> list[dict[str, object]]:
+def effective_group(effect: Effect, has_temperature: bool) -> str:
+    """The group ``effect`` falls in for a recording: its registry group, except that without a
+    temperature column ``temperature`` and ``bias_drift`` are one group, ``DRIFT_GROUP``.
+
+    Without the temperature the time course of a temperature effect is unknown (the twin can only
+    assume a warm-up curve), so what the data show is a slow change of the offset (and gains) in
+    time — a drift — and naming temperature as its cause would be a guess. With the column, the
+    residual either follows the temperature or it does not, and the two are told apart.
+    """
+    if not has_temperature and effect.name in _DRIFT_MEMBERS:
+        return DRIFT_GROUP
+    return effect.group
+
+
+def equivalent_groups(effects: list[Effect], has_temperature: bool = True) -> list[dict[str, object]]:
     """Groups of two or more applicable effects that the data cannot tell apart."""
     groups: dict[str, list[str]] = {}
     for e in effects:
-        groups.setdefault(e.group, []).append(e.name)
+        groups.setdefault(effective_group(e, has_temperature), []).append(e.name)
     return [{"group": g, "effects": sorted(names)} for g, names in sorted(groups.items()) if len(names) > 1]
 
 
-def gap_with(twin: Twin, base: Baseline, effect: str, m: float, seeds: tuple[int, ...]) -> tuple[float, dict[str, float]]:
+def gap_with(twin: Twin, base: Baseline, effect: str, m: float, seeds: tuple[int, ...], *,
+             own_spread: bool = False) -> tuple[float, dict[str, float]]:
+    """Overall and stage gaps of the recording against the twins with ``{effect: m}`` on ``seeds``,
+    on the baseline's spread, or with ``own_spread`` on the larger of it and the effect twins' own."""
     got = [twin.try_features({effect: m}, s) for s in seeds]
     feats = [f for f in got if f is not None]
     if not feats:
         return math.inf, {}
-    mean, _ = mean_features(feats)
-    stages = stage_gaps(twin.features_rec.values, mean, base.sd)
+    mean, sd = mean_features(feats)
+    if not (own_spread and len(feats) > 2):
+        stages = stage_gaps(twin.features_rec.values, mean, base.sd)
+        return overall_gap(stages), stages
+    # Gaussian negative log-likelihood per feature, z^2 + 2 log(s / s_base): a wider spread lowers z but
+    # costs its log, so an effect cannot win by being vague
+    wide = {}
+    for k, v in sd.items():
+        if k in base.sd and base.sd[k].shape == v.shape:
+            ref = np.maximum(base.sd[k], np.resize(np.asarray(STAGE_FLOORS[k]), v.shape))
+            wide[k] = np.clip(v, base.sd[k], _MAX_WIDEN * ref)  # a few seeds: do not trust a spread far wider
+    stages = stage_gaps(twin.features_rec.values, mean, wide)
+    for name in list(stages):
+        floor = np.resize(np.asarray(STAGE_FLOORS[name]), wide[name].shape)
+        pen = 2.0 * np.log(np.maximum(wide[name], floor) / np.maximum(base.sd[name], floor))
+        stages[name] = float(np.sqrt(stages[name] ** 2 + float(np.mean(pen))))
     return overall_gap(stages), stages
 
 
@@ -137,15 +191,38 @@ def fit_effect(twin: Twin, base: Baseline, effect: Effect, *, seeds: tuple[int, 
     log.debug("effect %s: magnitude %.4g, gap %.3g -> %.3g", effect.name, m_best, before, after)
     return EffectFit(name=effect.name, group=effect.group, magnitude=m_best, unit=effect.magnitude_unit,
                      gap_before=before, gap_after=after, shrink=shrink, stages_after=stages_after,
-                     curve=sorted((m, g[0]) for m, g in curve.items()))
+                     curve=sorted((m, g[0]) for m, g in curve.items()), n_seeds=len(seeds))
 
 
 def rank_effects(twin: Twin, base: Baseline, effects: list[Effect], *, seeds: tuple[int, ...] = (0, 1, 2),
-                 progress: object | None = None) -> list[EffectFit]:
-    """Fit every effect and sort by shrink (largest first)."""
+                 progress: object | None = None, refine_seeds: tuple[int, ...] = (), n_refine: int = _N_REFINE,
+                 ) -> list[EffectFit]:
+    """Fit every effect and sort by shrink (largest first).
+
+    With ``refine_seeds`` (e.g. every seed of the baseline's spread), the ``n_refine`` leading
+    effects are evaluated again at their fitted magnitude on those seeds before the final order, on
+    the larger of the baseline's spread and the effect twins' own (``own_spread``): an effect's random
+    draws (a direction, gain signs, burst times) differ between the recording and any twin and move
+    the features more than the noise does, so two effects that both explain most of the gap (a drift
+    and a warm-up) are compared on what their draws allow. The magnitude search itself stays on the
+    baseline's spread (with the effect's own spread it would favour the strong, widely spread
+    magnitudes).
+    """
     fits = []
     for i, e in enumerate(effects):
         fits.append(fit_effect(twin, base, e, seeds=seeds))
         if callable(progress):
             progress(i + 1, len(effects), e.name)
+    fits.sort(key=lambda f: (-f.shrink, f.gap_after))
+    if len(refine_seeds) > len(seeds):
+        for f in fits[:n_refine]:
+            if f.magnitude <= 0 or f.gap_before <= 0:
+                continue
+            gap, stages = gap_with(twin, base, f.name, f.magnitude, refine_seeds, own_spread=_OWN_SPREAD)
+            before = overall_gap(stage_gaps(twin.features_rec.values,
+                                            mean_features([twin.features(None, s) for s in refine_seeds])[0], base.sd))
+            if math.isfinite(gap) and before > 0:
+                f.gap_before, f.gap_after, f.stages_after = before, gap, stages
+                f.shrink = max(0.0, 1.0 - gap / before)
+                f.n_seeds = len(refine_seeds)
     return sorted(fits, key=lambda f: (-f.shrink, f.gap_after))

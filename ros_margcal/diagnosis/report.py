@@ -141,6 +141,14 @@ def summary(diag: Diagnosis) -> str:
     lines.append(f"ranking: {ranked}")
     if diag.unobservable:
         lines.append(f"unobservable with norm-based data: {', '.join(diag.unobservable)}")
+    for name, why in diag.skipped.items():
+        lines.append(f"stage {name} skipped: {why}")
+    ds = diag.downstream
+    if ds.get("available") and "predicted_control" in ds:
+        lines.append(f"validator on a 300-sample set: measured error {ds['measured']:.3g}, predicted {ds['predicted_before']:.3g}"
+                     f" (log error {ds['log_error_before']:.2f}); retrained with {ds['effect']}: {ds['predicted_after']:.3g}"
+                     f" ({ds['log_error_after']:.2f}); retrained without it: {ds['predicted_control']:.3g}"
+                     f" ({ds['log_error_control']:.2f})")
     return "\n".join(lines)
 
 

@@ -26,11 +26,13 @@ The stages, in the order a sample meets them:
     real harmonics ``Y_lm`` up to ``l = 4``): cross-axis terms show at ``l = 2``, cubic
     non-linearity at ``l = 4``, offsets left over at ``l = 1``.
 ``residual_time``
-    the residual explained by ``cos(pi k tau) Y_lm(d)`` (``tau`` = time scaled to [0, 1], ``l <= 2``)
-    beyond the static ``Y_lm``, for ``k = 1, 2`` and then ``k = 3..5`` (nested least squares): an
-    offset or gain that changes in time (drift, warm-up, its ripple); the lag-1
-    autocorrelation of what the direction fit leaves (bursts); and, when the recording has a
-    temperature column, the residual explained by ``(T - mean T) Y_lm(d)``.
+    the residual explained by ``cos(pi k tau) Y_lm(d)`` (``tau`` = time scaled to [0, 1]) beyond the
+    static ``Y_lm`` (nested least squares): for ``k = 1, 2`` first on the degree-1 harmonics (an
+    offset that moves: drift), then on degrees 0 and 2 (gains that move: a temperature coefficient),
+    then ``k = 3..5`` on ``l <= 2`` (the ripple of a warm-up); the lag-1 autocorrelation of what the
+    direction fit leaves (bursts); and, when the recording has a temperature column, the residual
+    explained by ``(T - mean T) Y_lm(d)`` beyond the static harmonics and beyond the static and slow
+    terms (the residual follows the temperature, not just any slow trend).
 ``residual_tails``
     the 99.9th and 99th percentiles of ``|r|`` and the plain std against the MAD sigma, and the
     quantile skewness ``(q99 + q01 - 2 q50) / (q99 - q01)``.
@@ -47,6 +49,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.linalg import solve_triangular
 from scipy.special import sph_harm_y
 
 from ..calibration import Calibration
@@ -76,19 +79,20 @@ STAGES: tuple[str, ...] = (
 """The stages, in the order a sample meets them."""
 
 # spread floors per stage feature, in the feature's own unit (decades for log10 features)
-_FLOORS: dict[str, tuple[float, ...]] = {
+STAGE_FLOORS: dict[str, tuple[float, ...]] = {
     "rest_noise": (0.02,),
     "quantisation": (0.02, 0.01, 0.005),
     "clipping": (0.002,),
     "residual_size": (0.01, 0.01),
     "residual_direction": (0.05, 0.05, 0.05, 0.05),
-    "residual_time": (0.05, 0.05, 0.03, 0.05),
+    "residual_time": (0.05, 0.05, 0.05, 0.03, 0.1, 0.05, 0.05),
     "residual_tails": (0.03, 0.02, 0.02, 0.03),
     "validator": (0.05,),
 }
 _TRIM_STD = 0.8711  # std of a standard normal truncated at its two-sided 95 % quantile (±1.960)
 _L_MAX = 4
 _K_TIME = 5
+_N_STEPS = 81
 _N_VALIDATOR_SET = 300
 _TINY = 1e-12
 _MAX_ITER = 400  # LM iterations: strong effects make the ellipsoid fit converge slowly
@@ -190,24 +194,87 @@ def _explained(r: Array, x: Array) -> Array:
 
 
 def _time_features(r: Array, basis: Array, t: Array, temp: Array | None, r_dir: Array) -> Array:
-    """Residual explained by slow (k = 1, 2) and faster (k = 3..5) time modulation of ``Y_lm``, l <= 2,
-    beyond what the static harmonics explain (nested fits, so collinear columns cannot inflate it)."""
+    """Residual explained by time modulation of ``Y_lm`` (l <= 2) beyond the static harmonics.
+
+    Nested least-squares fits (so collinear columns cannot inflate a later term): the slow (k = 1, 2)
+    modulation of the degree-1 harmonics first — an offset that moves (drift) —, then of degrees 0 and
+    2 — gains that move (a temperature coefficient changes gains as well as the offset) —, then the
+    faster k = 3..5; the lag-1 autocorrelation of what the direction fit leaves (bursts); offset step
+    against smooth drift (``_step_feature``); with a temperature column, what ``(T - mean T) Y_lm``
+    explains beyond the static harmonics and beyond the static and slow terms (a residual that
+    follows the temperature, not just a trend). All sizes but the first are taken relative to the
+    first (differences of log10 RMS): they describe the *shape* of the change in time, which does not
+    depend on how strong it is, so a twin whose effect is a little too weak or strong still matches them.
+    """
     span = float(t[-1] - t[0]) if t.size > 1 else 1.0
     tau = (t - t[0]) / (span if span > 0 else 1.0)
     static = basis[:, :9]
-    slow = np.hstack([static] + [np.cos(math.pi * k * tau)[:, None] * static for k in (1, 2)])
-    full = np.hstack([slow] + [np.cos(math.pi * k * tau)[:, None] * static for k in range(3, _K_TIME + 1)])
-    f0, f1, f2 = _explained(r, static), _explained(r, slow), _explained(r, full)
+    mods = [np.cos(math.pi * k * tau)[:, None] for k in range(1, _K_TIME + 1)]
+    offset_cols = basis[:, 1:4]
+    gain_cols = basis[:, [0, 4, 5, 6, 7, 8]]
+    slow_off = np.hstack([static] + [mods[k] * offset_cols for k in (0, 1)])
+    slow = np.hstack([slow_off] + [mods[k] * gain_cols for k in (0, 1)])
+    full = np.hstack([slow] + [mods[k] * static for k in range(2, _K_TIME)])
+    f0, f_off, f1, f2 = (_explained(r, x) for x in (static, slow_off, slow, full))
     left = r - r_dir
     left = left - left.mean()
     den = float(left @ left)
     acf = float(left[1:] @ left[:-1]) / den if den > 0 else 0.0
-    feats = [_log10(float(np.sqrt(np.mean((f1 - f0) ** 2)))), _log10(float(np.sqrt(np.mean((f2 - f1) ** 2)))), acf]
+    off = _rms_log(f_off - f0)
+    feats = [off, _rms_log(f1 - f_off) - off, _rms_log(f2 - f1) - off, acf,
+             _step_feature(r, static, slow_off, tau, offset_cols)]
     if temp is not None and np.ptp(temp) > 0:
-        z = (temp - temp.mean()) / temp.std()
-        ft = _explained(r, np.hstack([static, z[:, None] * static]))
-        feats.append(_log10(float(np.sqrt(np.mean((ft - f0) ** 2)))))
+        z = ((temp - temp.mean()) / temp.std())[:, None]
+        ft = _explained(r, np.hstack([static, z * static]))
+        fts = _explained(r, np.hstack([slow, z * static]))
+        feats += [_rms_log(ft - f0) - off, _rms_log(fts - f1) - off]
     return np.array(feats)
+
+
+def _step_feature(r: Array, static: Array, slow_off: Array, tau: Array, offset_cols: Array) -> float:
+    """Whether one offset step or a smooth offset drift explains the time-varying residual better.
+
+    The best change point ``c`` (10-90 % of the span) is the one whose step ``H(tau - c) Y_1m(d)``,
+    made orthogonal to the slow offset terms, explains most of what they leave. With ``e2_*`` the mean
+    squared residual of the fit on the static harmonics plus: the step (``step``), the slow offset
+    terms (``slow``), both (``both``), the feature is ``log10((e2_step - e2_both + eps) / (e2_slow -
+    e2_both + eps))``: what the smooth terms add beyond the step over what the step adds beyond them
+    — negative for a jump, positive for a drift, about 0 for noise (``eps``: the share of about six
+    fitted noise terms, ``6 e2_both / n``).
+    """
+    g0 = slow_off.T @ slow_off
+    g0[np.diag_indices_from(g0)] += 1e-9 * max(float(np.trace(g0)) / g0.shape[0], _TINY)
+    q = solve_triangular(np.linalg.cholesky(g0), slow_off.T, lower=True).T  # orthonormal columns spanning slow_off
+    left = r - q @ (q.T @ r)
+    # every change point at once: the step columns are offset_cols on the samples with tau >= c, so
+    # their products with q, themselves and ``left`` are tail sums (tau is non-decreasing)
+    start = np.searchsorted(tau, np.linspace(0.1, 0.9, _N_STEPS), side="left")
+    start = np.unique(start[start < tau.size])
+    if start.size == 0:
+        return 0.0
+
+    def tails(a: Array) -> Array:
+        return np.cumsum(a[::-1], axis=0)[::-1][start]
+
+    qtx = tails(q[:, :, None] * offset_cols[:, None, :])  # (k, p, 3)
+    g = tails(offset_cols[:, :, None] * offset_cols[:, None, :]) - np.einsum("kpi,kpj->kij", qtx, qtx)
+    xtl = tails(offset_cols * left[:, None])  # (k, 3); left is orthogonal to q already
+    g = g + 1e-9 * np.einsum("kii->k", g)[:, None, None] * np.eye(3) + _TINY * np.eye(3)
+    gains = np.einsum("ki,ki->k", xtl, np.linalg.solve(g, xtl[:, :, None])[:, :, 0])
+    j = int(np.argmax(gains))
+    best = float(gains[j])
+    best_x = offset_cols * (np.arange(tau.size) >= start[j])[:, None]
+    n = r.size
+    e2_slow = float(left @ left) / n
+    e2_both = max(e2_slow - best / n, 0.0)
+    rs = r - _explained(r, np.hstack([static, best_x]))
+    e2_step = float(rs @ rs) / n
+    eps = 6.0 * e2_both / n + _TINY
+    return math.log10((max(e2_step - e2_both, 0.0) + eps) / (max(e2_slow - e2_both, 0.0) + eps))
+
+
+def _rms_log(x: Array) -> float:
+    return _log10(float(np.sqrt(np.mean(x**2))))
 
 
 def _tail_features(r: Array) -> Array:
@@ -257,6 +324,7 @@ def stage_features(
     *,
     validator: object | None = None,
     norm: float | None = None,
+    skip: frozenset[str] = frozenset(),
 ) -> StageFeatures:
     """All stage features of one recording.
 
@@ -267,6 +335,7 @@ def stage_features(
         sub: indices of the fitting subsample (the fits and residual stages use these only).
         validator: a validator with ``predict_indicators`` (the ``validator`` stage is skipped if None).
         norm: reference norm passed to the fits (None: estimated, det(W) = 1).
+        skip: stages to leave out (e.g. ``rest_noise`` for a recording without time continuity).
 
     Raises:
         DegenerateDataError, ConvergenceError: the subsample cannot be fitted (e.g. a static recording).
@@ -288,7 +357,8 @@ def stage_features(
     coef, amp = sh_power(r, basis)
     values["residual_direction"] = np.array([_log10(a) for a in amp[1:]])
     tsub = temp[sub] if temp is not None else None
-    values["residual_time"] = _time_features(r, basis, t[sub], tsub, basis @ coef)
+    if "residual_time" not in skip:
+        values["residual_time"] = _time_features(r, basis, t[sub], tsub, basis @ coef)
     values["residual_tails"] = _tail_features(r - basis @ coef)
     if validator is not None and sym is not None:
         pick = np.linspace(0, len(sub) - 1, min(_N_VALIDATOR_SET, len(sub))).astype(np.intp)
@@ -297,6 +367,8 @@ def stage_features(
             values["validator"] = np.array([_log10(meas / max(pred, _TINY))])
         except MargCalError as exc:
             log.debug("validator stage skipped: %s", exc)
+    for name in skip:
+        values.pop(name, None)
     return StageFeatures(values=values, residual=r, dirs=dirs, t=t[sub], rest_noise=noise_rel)
 
 
@@ -321,7 +393,7 @@ def stage_gaps(
         a, m, s = rec[name], twin_mean[name], twin_sd[name]
         if a.shape != m.shape:
             continue
-        floor = np.resize(np.asarray(_FLOORS[name]), a.shape)
+        floor = np.resize(np.asarray(STAGE_FLOORS[name]), a.shape)
         z = (a - m) / np.maximum(s, floor)
         z = np.where(np.isfinite(z), z, 0.0)
         out[name] = float(np.sqrt(np.mean(z**2)))

@@ -8,6 +8,11 @@ From the recording's own fits (``fitting.fit`` on an evenly spaced subsample):
 - the *noise* is white, at the recording's rest-noise level (``stages.rest_noise``, or a level the
   caller measured at rest, e.g. from a static recording of the same sensor).
 
+A recording without time continuity (consecutive samples more than ``MAX_STEP_DEG`` apart, e.g. a
+coverage pattern written with made-up timestamps) keeps its directions unsmoothed, skips the
+``rest_noise`` stage (second differences would measure the motion) and, unless the caller gives the
+rest noise, takes the twin's noise from the best fit's residual; ``Twin.skipped`` says why.
+
 ``Twin.features(effects, seed)`` simulates the twin (``simulation.simulate`` with the recording's
 timestamps and temperature, optionally with effects from the registry) and returns its stage
 features; ``Twin.spread`` gives the baseline's mean and spread over several seeds, the yardstick of
@@ -32,7 +37,7 @@ from ..fitting import fit
 from ..simulation import simulate
 from .stages import StageFeatures, rest_noise, stage_features
 
-__all__ = ["Baseline", "Twin", "build_twin", "mean_features", "smooth_directions", "subsample"]
+__all__ = ["MAX_STEP_DEG", "Baseline", "Twin", "build_twin", "mean_features", "median_step_deg", "smooth_directions", "subsample"]
 
 log = logging.getLogger(__name__)
 
@@ -42,8 +47,11 @@ DEFAULT_N_FIT = 6000
 """Samples the fitting stages use (evenly spaced in time); the read-out stages use every sample."""
 MIN_SAMPLES = 50
 SMOOTH_WINDOW = 31
-_MAX_ITER = 400
 """Samples of the direction smoothing window (0.3 s at 100 Hz)."""
+MAX_STEP_DEG = 10.0
+"""Median angle between consecutive samples above which a recording has no time continuity: its rest
+noise cannot be measured from second differences and its directions are not smoothed."""
+_MAX_ITER = 400
 
 
 def smooth_directions(h: Array, window: int = SMOOTH_WINDOW, t: Array | None = None) -> Array:
@@ -68,6 +76,16 @@ def smooth_directions(h: Array, window: int = SMOOTH_WINDOW, t: Array | None = N
             h[lo:hi] = savgol_filter(h[lo:hi], w, 2, axis=0, mode="interp")
     lengths = np.linalg.norm(h, axis=1, keepdims=True)
     return h / np.where(lengths > 0, lengths, 1.0)
+
+
+def median_step_deg(h: Array) -> float:
+    """Median angle between consecutive vectors of ``h`` (n, 3), degrees: small for a time series of a
+    turning sensor, ~90 for directions in random order (e.g. a coverage pattern without time)."""
+    if h.shape[0] < 2:
+        return 0.0
+    a, b = h[:-1], h[1:]
+    cos = np.einsum("ij,ij->i", a, b) / np.maximum(np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1), 1e-300)
+    return float(np.degrees(np.median(np.arccos(np.clip(cos, -1.0, 1.0)))))
 
 
 def subsample(n: int, n_fit: int) -> NDArray[np.intp]:
@@ -126,6 +144,7 @@ class Twin:
         norm: the reference norm given by the user, or None (estimated).
         validator: the validator of the ``validator`` stage, or None.
         features_rec: the recording's own stage features.
+        skipped: stage -> why it is left out for this recording (e.g. no time continuity).
     """
 
     t: Array
@@ -140,6 +159,7 @@ class Twin:
     norm: float | None
     validator: object | None
     features_rec: StageFeatures
+    skipped: dict[str, str] = field(default_factory=dict)
     _cache: dict[tuple[tuple[tuple[str, float], ...], int], StageFeatures] = field(default_factory=dict, repr=False)
 
     def features(self, effects: dict[str, float] | None, seed: int) -> StageFeatures:
@@ -154,7 +174,8 @@ class Twin:
         if not np.isfinite(raw).all():
             msg = f"the simulator produced non-finite readings for effects {dict(key[0])}"
             raise InputError(msg)
-        out = stage_features(self.t, raw, self.temp, self.sub, validator=self.validator, norm=self.norm)
+        out = stage_features(self.t, raw, self.temp, self.sub, validator=self.validator, norm=self.norm,
+                             skip=frozenset(self.skipped))
         self._cache[key] = out
         return out
 
@@ -169,7 +190,12 @@ class Twin:
     def spread(self, n_seeds: int = 6) -> Baseline:
         """The baseline twin over seeds ``0 .. n_seeds-1``."""
         seeds = tuple(range(max(2, n_seeds)))
-        feats = [self.features(None, s) for s in seeds]
+        try:
+            feats = [self.features(None, s) for s in seeds]
+        except MargCalError as exc:
+            msg = (f"the baseline twin cannot be fitted ({exc}); the recording's directions or noise level "
+                   f"(rest noise {self.noise:.3g} of the field radius) do not make a usable twin")
+            raise DegenerateDataError(msg) from exc
         _, sd = mean_features(feats)
         mean, _ = mean_features(feats)
         return Baseline(seeds=seeds, features=feats, mean=mean, sd=sd)
@@ -218,16 +244,39 @@ def build_twin(
     sub = subsample(n, n_fit)
     try:
         best = fit(pts[sub], model="sym", method="lm", norm=norm, max_iter=_MAX_ITER)
-        features_rec = stage_features(times, pts, tmp, sub, validator=validator, norm=norm)
         truth = fit(pts[sub], model="diag", method="lm", norm=norm, sensor=sensor, max_iter=_MAX_ITER)
     except MargCalError as exc:
         msg = (f"the recording cannot be fitted ({exc}); a diagnosis needs a recording that turns the sensor "
                "through many directions (a static recording only gives rest noise and quantisation)")
         raise DegenerateDataError(msg) from exc
-    dirs = smooth_directions(best.apply(pts), t=times)
+    h = best.apply(pts)
+    step = median_step_deg(h)
+    skipped: dict[str, str] = {}
+    if np.ptp(times) <= 0:
+        skipped["residual_time"] = "the recording has no time span (all timestamps equal)"
+    if step > MAX_STEP_DEG:
+        skipped["rest_noise"] = (
+            f"no time continuity: consecutive samples point {step:.0f} deg apart (median; a turning sensor "
+            f"sampled as a time series moves < {MAX_STEP_DEG:.0f} deg), so second differences measure the motion, "
+            "not the noise" + ("" if rest_noise_raw is not None else
+                              "; the twin's noise is the best fit's residual (pass the rest noise to test "
+                              "the noise effect)"))
+        lengths = np.linalg.norm(h, axis=1, keepdims=True)
+        dirs = h / np.where(lengths > 0, lengths, 1.0)
+    else:
+        dirs = smooth_directions(h, t=times)
+    try:
+        features_rec = stage_features(times, pts, tmp, sub, validator=validator, norm=norm, skip=frozenset(skipped))
+    except MargCalError as exc:
+        msg = f"the recording's stage features cannot be computed ({exc})"
+        raise DegenerateDataError(msg) from exc
     r_raw = truth.norm / abs(float(np.linalg.det(truth.matrix))) ** (1.0 / 3.0)
     if rest_noise_raw is None:
-        noise = rest_noise(pts) / r_raw
+        if "rest_noise" in skipped:
+            rms = best.stats.rms_relative if best.stats is not None else 0.0
+            noise = float(rms) * float(best.norm) / abs(float(np.linalg.det(best.matrix))) ** (1.0 / 3.0) / r_raw
+        else:
+            noise = rest_noise(pts) / r_raw
     else:
         if not (math.isfinite(rest_noise_raw) and rest_noise_raw >= 0):
             msg = f"rest noise must be a non-negative std in raw units, got {rest_noise_raw!r}"
@@ -235,5 +284,7 @@ def build_twin(
         noise = float(rest_noise_raw) / r_raw
     truth = truth.replace(sensor=sensor, method="twin")
     log.debug("twin: %d samples (%d fitted), radius %.4g raw units, noise %.3g of it", n, sub.size, r_raw, noise)
+    for name, why in skipped.items():
+        log.debug("stage %s skipped: %s", name, why)
     return Twin(t=times, raw=pts, temp=tmp, sub=sub, truth=truth, best=best, dirs=dirs, noise=noise, sensor=sensor,
-                norm=norm, validator=validator, features_rec=features_rec)
+                norm=norm, validator=validator, features_rec=features_rec, skipped=skipped)
