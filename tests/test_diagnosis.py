@@ -230,3 +230,71 @@ def test_drift_and_temperature_are_one_group_only_without_temperature() -> None:
     observable, _ = applicable_effects("mag")
     assert {"group": DRIFT_GROUP, "effects": ["bias_drift", "temperature"]} in equivalent_groups(observable, False)
     assert all(g["group"] != DRIFT_GROUP for g in equivalent_groups(observable, True))
+
+
+@pytest.mark.parametrize(("effects", "found"), [({"hard_iron_jump": 0.15}, True), (None, False), ({"soft_iron": 0.1}, False)])
+def test_offset_change_is_located_only_where_the_offset_steps(effects: dict[str, float] | None, found: bool) -> None:
+    """The change point splits a jump recording where the offset steps (offsets within 3 % of the field
+    radius on both sides, 2 s off the split); a recording without a jump has none."""
+    from ros_margcal.diagnosis import locate_offset_change
+
+    rec, _ = _stream(effects, duration=60.0)
+    change = locate_offset_change(rec.t, rec.raw)
+    assert (change is not None) == found
+    if change is None:
+        return
+    r_raw = rec.truth.norm / abs(float(np.linalg.det(rec.truth.matrix))) ** (1 / 3)
+    shift = rec.raw - rec.truth.inverse_apply(rec.true_field)  # the offset change plus noise
+    before, after = shift[rec.t < change.t - 2.0].mean(axis=0), shift[rec.t > change.t + 2.0].mean(axis=0)
+    assert np.linalg.norm(before) < 0.03 * r_raw
+    assert np.linalg.norm(after) == pytest.approx(0.15 * r_raw, rel=0.1)
+    assert np.linalg.norm(change.offset_before - rec.truth.offset) < 0.03 * r_raw
+    assert change.relative_step == pytest.approx(0.15, rel=0.2)
+
+
+def test_recording_no_single_fit_can_fit_is_diagnosed_as_a_jump() -> None:
+    """A jump of 0.9 field radii keeps lm from fitting the whole recording: the step is located, the twin
+    is the fit of one side and hard_iron_jump is named with a magnitude near the true one."""
+    from ros_margcal.diagnosis import summary
+
+    rec, sigma = _stream({"hard_iron_jump": 0.9}, duration=60.0)
+    d = diagnose(rec, sensor="mag", rest_noise=sigma, n_seeds=2, n_spread=4)
+    assert d.offset_change and d.offset_change["relative_step"] == pytest.approx(0.9, rel=0.2)
+    assert d.cause == "hard_iron_jump"
+    assert d.effects[0].magnitude == pytest.approx(0.9, rel=0.15)
+    assert d.shrink > 0.6
+    assert "offset change at t" in summary(d)
+    assert d.to_dict()["offset_change"]["t"] == d.offset_change["t"]
+
+
+def test_unfittable_sides_say_where_the_offset_changes(monkeypatch: pytest.MonkeyPatch) -> None:
+    """When neither the whole recording nor its sides can be fitted, the error gives the change's time
+    and asks for the parts to be diagnosed separately."""
+    from ros_margcal.diagnosis import twin as twin_module
+    from ros_margcal.errors import ConvergenceError
+
+    def fail(*args: object, **kwargs: object) -> None:
+        raise ConvergenceError("side fit failed")
+
+    monkeypatch.setattr(twin_module, "_segment_fits", fail)
+    rec, sigma = _stream({"hard_iron_jump": 0.9}, duration=60.0)
+    change = twin_module.locate_offset_change(rec.t, rec.raw)
+    assert change is not None
+    with pytest.raises(DegenerateDataError, match=rf"offset change at t \u2248 {change.t:.1f} s.*separately"):
+        build_twin(rec.t, rec.raw, sensor="mag", rest_noise_raw=sigma)
+
+
+def test_real_attached_magnet_change_is_located(real_data_dir: Path) -> None:
+    """BROAD 36 (a magnet 5 cm from the sensor, removed again at about 98 s): the change is found there,
+    a step of about a tenth of the field radius; the undisturbed BROAD 02 has none."""
+    from ros_margcal.diagnosis import locate_offset_change
+    from ros_margcal.io import read_recording
+
+    rec = read_recording(real_data_dir / "broad_36_disturbed_attached_magnet_5cm_mag.csv", sensor="mag")
+    sub = subsample(len(rec.t), 6000)
+    change = locate_offset_change(rec.t[sub], rec.raw[sub])
+    assert change is not None and 94.0 < change.t < 102.0
+    assert 0.05 < change.relative_step < 0.2
+    calm = read_recording(real_data_dir / "broad_02_undisturbed_slow_rotation_B_mag.csv", sensor="mag")
+    sub = subsample(len(calm.t), 6000)
+    assert locate_offset_change(calm.t[sub], calm.raw[sub]) is None

@@ -3,12 +3,14 @@
 A recording is put against its simulated twin (``twin``: same directions and timestamps, the
 simulator's baseline model) stage by stage (``stages``); every effect of the simulator's registry is
 fitted to close the gap and ranked by the share it removes (``effects``); ``core.diagnose`` decides,
-``report`` writes the JSON and HTML. ``ros_margcal.bench.diagnosis`` checks it on recordings whose
+``report`` writes the JSON and HTML; ``changes`` locates an offset step that keeps one calibration
+from fitting a recording. ``ros_margcal.bench.diagnosis`` checks it on recordings whose
 effect is withheld.
 """
 
 from __future__ import annotations
 
+from .changes import OffsetChange, locate_offset_change
 from .core import NONE_GAP, Diagnosis, diagnose, diagnose_holdout, validator_downstream
 from .effects import EffectFit, applicable_effects, equivalent_groups, fit_effect, rank_effects
 from .report import summary, write_report
@@ -20,6 +22,7 @@ __all__ = [
     "STAGES",
     "Diagnosis",
     "EffectFit",
+    "OffsetChange",
     "StageFeatures",
     "Twin",
     "applicable_effects",
@@ -28,6 +31,7 @@ __all__ = [
     "diagnose_holdout",
     "equivalent_groups",
     "fit_effect",
+    "locate_offset_change",
     "rank_effects",
     "rest_noise",
     "stage_features",

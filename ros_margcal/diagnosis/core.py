@@ -13,6 +13,11 @@ observable effect of the registry (``effects.rank_effects``) and decides:
   effect removes ``MIN_SHRINK`` of it;
 - ``shrink``: the share of the overall gap that effect removes, and the stage gaps after it.
 
+A recording that no single calibration fits because its offset steps (a magnet attached in
+mid-recording) gets its twin from the fit of one side of the step (``twin.Twin.change``,
+``Diagnosis.offset_change``), so the ranking can name ``hard_iron_jump``; the located step ranks
+``hard_iron_jump`` first when it removes within ``CHANGE_MARGIN`` of the top effect's share.
+
 ``diagnose_holdout`` fits on the first part of a recording and measures the shrink on the rest.
 ``downstream`` adds the validator's view (see ``validator_downstream``).
 """
@@ -56,6 +61,12 @@ MIN_SHRINK = 0.3
 explains counts as the baseline's spread (``none``), a larger one is ``unexplained``."""
 
 
+JUMP_EFFECT = "hard_iron_jump"
+"""The registry effect a located offset step stands for."""
+CHANGE_MARGIN = 0.05
+"""Shrink margin within which ``JUMP_EFFECT`` is ranked first on a recording with a located offset step."""
+
+
 @dataclass
 class Diagnosis:
     """The result of ``diagnose`` (``to_dict`` gives the JSON of ``margcal diagnose``)."""
@@ -81,6 +92,7 @@ class Diagnosis:
     baseline: Baseline | None = field(default=None, repr=False)
     downstream: dict[str, Any] = field(default_factory=dict)
     skipped: dict[str, str] = field(default_factory=dict)
+    offset_change: dict[str, float] = field(default_factory=dict)
 
     @property
     def best(self) -> EffectFit | None:
@@ -120,6 +132,7 @@ class Diagnosis:
             "seconds": self.seconds,
             "downstream": self.downstream,
             "skipped": [{"stage": k, "reason": v} for k, v in self.skipped.items()],
+            "offset_change": self.offset_change,
         }
 
 
@@ -131,6 +144,28 @@ def _null_gaps(base: Baseline) -> list[float]:
         mean, _ = mean_features(others)
         out.append(overall_gap(stage_gaps(base.features[k].values, mean, base.sd)))
     return out
+
+
+def _prefer_located_jump(fits: list[EffectFit]) -> list[EffectFit]:
+    """Put ``JUMP_EFFECT`` first when its shrink is within ``CHANGE_MARGIN`` of the top one.
+
+    Used when the recording holds a located offset step (``twin.Twin.change``): the step is evidence
+    the shrink alone does not weigh, and on such recordings (the stage features then come from the
+    closed-form fit) a burst disturbance at its largest magnitude closes nearly as much of the gap.
+    """
+    top = fits[0].shrink if fits else 0.0
+    for i, f in enumerate(fits):
+        if f.name == JUMP_EFFECT and i > 0 and f.magnitude > 0 and f.shrink >= top - CHANGE_MARGIN:
+            return [f, *fits[:i], *fits[i + 1:]]
+    return fits
+
+
+def _change_dict(twin: Twin) -> dict[str, float]:
+    """The offset change that kept one calibration from fitting the recording (empty when none)."""
+    c = twin.change
+    if c is None:
+        return {}
+    return {"t": c.t, "step": c.step, "relative_step": c.relative_step, "drop": c.drop}
 
 
 def _arrays(recording: Any) -> tuple[Array, Array, Array | None, str]:
@@ -188,6 +223,8 @@ def diagnose(
     observable, hidden = applicable_effects(sensor)
     has_temp = twin.temp is not None and bool(np.ptp(twin.temp) > 0)
     fits = rank_effects(twin, base, observable, seeds=seeds, progress=progress, refine_seeds=base.seeds)
+    if twin.change is not None:
+        fits = _prefer_located_jump(fits)
     group_of = {e.name: effective_group(e, has_temp) for e in observable}
     for f in fits:
         f.group = group_of[f.name]
@@ -208,7 +245,7 @@ def diagnose(
         stages_before=before, stages_after=stages_after, effects=fits, equivalent=equivalent_groups(observable, has_temp),
         unobservable=[e.name for e in hidden], null_gaps=_null_gaps(base), sensor=sensor, n_samples=len(t),
         n_fit=int(twin.sub.size), noise=twin.noise, seconds=time.monotonic() - t0, twin=twin, baseline=base,
-        skipped=dict(twin.skipped),
+        skipped=dict(twin.skipped), offset_change=_change_dict(twin),
     )
 
 

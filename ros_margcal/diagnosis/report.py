@@ -143,6 +143,10 @@ def summary(diag: Diagnosis) -> str:
         lines.append(f"unobservable with norm-based data: {', '.join(diag.unobservable)}")
     for name, why in diag.skipped.items():
         lines.append(f"stage {name} skipped: {why}")
+    oc = diag.offset_change
+    if oc:
+        lines.append(f"offset change at t \u2248 {oc['t']:.1f} s (step {100 * oc['relative_step']:.0f} % of the field "
+                     "radius): no single calibration fits the recording; the twin is the fit of the side with more motion")
     ds = diag.downstream
     if ds.get("available") and "predicted_control" in ds:
         lines.append(f"validator on a 300-sample set: measured error {ds['measured']:.3g}, predicted {ds['predicted_before']:.3g}"

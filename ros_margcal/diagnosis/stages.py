@@ -325,6 +325,7 @@ def stage_features(
     validator: object | None = None,
     norm: float | None = None,
     skip: frozenset[str] = frozenset(),
+    closed_form: bool = False,
 ) -> StageFeatures:
     """All stage features of one recording.
 
@@ -336,12 +337,18 @@ def stage_features(
         validator: a validator with ``predict_indicators`` (the ``validator`` stage is skipped if None).
         norm: reference norm passed to the fits (None: estimated, det(W) = 1).
         skip: stages to leave out (e.g. ``rest_noise`` for a recording without time continuity).
+        closed_form: fit ``diag`` by the closed-form ``lin_auto`` instead of ``lm`` (a recording with an
+            offset change, see ``twin.Twin.change``: ``lm`` may not converge on it, and the recording and
+            its twins must be measured alike).
 
     Raises:
         DegenerateDataError, ConvergenceError: the subsample cannot be fitted (e.g. a static recording).
     """
     pts = raw[sub]
-    cal = fit(pts, model="diag", method="lm", norm=norm, max_iter=_MAX_ITER)
+    if closed_form:
+        cal = fit(pts, model="diag", method="lin_auto", norm=norm)
+    else:
+        cal = fit(pts, model="diag", method="lm", norm=norm, max_iter=_MAX_ITER)
     r_raw = cal.norm / abs(float(np.linalg.det(cal.matrix))) ** (1.0 / 3.0)
     h = cal.apply(pts)
     lengths = np.linalg.norm(h, axis=1)

@@ -35,6 +35,7 @@ from ..calibration import Calibration
 from ..errors import DegenerateDataError, InputError, MargCalError, as_points
 from ..fitting import fit
 from ..simulation import simulate
+from .changes import OffsetChange, locate_offset_change, moving_mask
 from .stages import StageFeatures, rest_noise, stage_features
 
 __all__ = ["MAX_STEP_DEG", "Baseline", "Twin", "build_twin", "mean_features", "median_step_deg", "smooth_directions", "subsample"]
@@ -52,6 +53,8 @@ MAX_STEP_DEG = 10.0
 """Median angle between consecutive samples above which a recording has no time continuity: its rest
 noise cannot be measured from second differences and its directions are not smoothed."""
 _MAX_ITER = 400
+_GUARD = 0.05
+"""Share of the moving span left out on either side of an offset change when its sides are fitted."""
 
 
 def smooth_directions(h: Array, window: int = SMOOTH_WINDOW, t: Array | None = None) -> Array:
@@ -145,6 +148,10 @@ class Twin:
         validator: the validator of the ``validator`` stage, or None.
         features_rec: the recording's own stage features.
         skipped: stage -> why it is left out for this recording (e.g. no time continuity).
+        change: the offset change found when no single calibration fits the recording (then ``truth``
+            and ``best`` are the fits of the side with more motion, the directions come from each
+            side's own fit, and the stage features use the closed-form ``lin_auto`` fit in place of
+            ``lm``, for the recording and the twin alike), else None.
     """
 
     t: Array
@@ -160,6 +167,7 @@ class Twin:
     validator: object | None
     features_rec: StageFeatures
     skipped: dict[str, str] = field(default_factory=dict)
+    change: OffsetChange | None = None
     _cache: dict[tuple[tuple[tuple[str, float], ...], int], StageFeatures] = field(default_factory=dict, repr=False)
 
     def features(self, effects: dict[str, float] | None, seed: int) -> StageFeatures:
@@ -175,7 +183,7 @@ class Twin:
             msg = f"the simulator produced non-finite readings for effects {dict(key[0])}"
             raise InputError(msg)
         out = stage_features(self.t, raw, self.temp, self.sub, validator=self.validator, norm=self.norm,
-                             skip=frozenset(self.skipped))
+                             skip=frozenset(self.skipped), closed_form=self.change is not None)
         self._cache[key] = out
         return out
 
@@ -199,6 +207,77 @@ class Twin:
         _, sd = mean_features(feats)
         mean, _ = mean_features(feats)
         return Baseline(seeds=seeds, features=feats, mean=mean, sd=sd)
+
+
+def _change_message(change: OffsetChange, exc: Exception) -> str:
+    return (f"the recording cannot be fitted ({exc}): it seems to contain an offset change at t \u2248 {change.t:.1f} s "
+            f"(a step of {change.step:.3g} raw units, {change.relative_step:.0%} of the field radius; a hard-iron "
+            "change such as a magnet attached or moved near the sensor), so no single calibration fits it; "
+            f"diagnose the parts before and after t \u2248 {change.t:.1f} s separately")
+
+
+def _side_fit(
+    times: Array, pts: Array, idx: NDArray[np.intp], norm: float | None, sensor: str, depth: int = 1,
+) -> tuple[Calibration, Calibration]:
+    """Best (``sym``, else ``diag``) and baseline (``diag``) fits of the samples ``idx``; when ``lm``
+    does not converge, those of the larger part around their own offset change (``depth`` more levels:
+    a magnet attached and removed again makes two changes)."""
+    try:
+        diag = fit(pts[idx], model="diag", method="lm", norm=norm, sensor=sensor, max_iter=_MAX_ITER)
+    except MargCalError:
+        inner = locate_offset_change(times[idx], pts[idx]) if depth > 0 else None
+        if inner is None:
+            raise
+        ti = times[idx]
+        span = float(np.ptp(ti))
+        parts = [idx[ti < inner.t - _GUARD * span], idx[ti > inner.t + _GUARD * span]]
+        return _side_fit(times, pts, max(parts, key=len), norm, sensor, depth - 1)
+    try:
+        sym = fit(pts[idx], model="sym", method="lm", norm=norm, max_iter=_MAX_ITER)
+    except MargCalError:
+        sym = diag
+    return sym, diag
+
+
+def _segment_fits(
+    times: Array, pts: Array, sub: NDArray[np.intp], change: OffsetChange, norm: float | None, sensor: str,
+) -> tuple[Calibration, Calibration, Array]:
+    """Fits of the two sides of an offset change: the reference side's best and baseline fits, and the
+    calibrated vectors (n, 3) of every sample, each side with its own best fit.
+
+    The reference side is the one with more moving samples (``changes.moving_mask``); each side is
+    fitted on its moving samples of the subsample only (a still stretch adds one point, possibly with
+    the other offset if the change happened while still), leaving out ``_GUARD`` of the moving span on
+    either side of the change (``_side_fit``). When the other side cannot be fitted, its vectors use the
+    reference side's best fit moved to the other side's centre (``OffsetChange.offset_after``/``before``).
+
+    Raises:
+        MargCalError: the reference side cannot be fitted.
+    """
+    ts = times[sub]
+    moving = moving_mask(ts, pts[sub])
+    after = ts >= change.t
+    span = float(np.ptp(ts[moving])) if moving.any() else 0.0
+    clear = np.abs(ts - change.t) > _GUARD * span  # the change is located only roughly
+    masks = (~after, after)
+    ref = int(np.count_nonzero(after & moving) > np.count_nonzero(~after & moving))
+    cals: list[Calibration | None] = [None, None]
+    for k in (ref, 1 - ref):
+        idx = sub[masks[k] & moving & clear]
+        if idx.size < MIN_SAMPLES:
+            idx = sub[masks[k]]
+        if k == ref:
+            best, truth = _side_fit(times, pts, idx, norm, sensor)
+            cals[k] = best
+            continue
+        try:
+            cals[k] = _side_fit(times, pts, idx, norm, sensor)[0]
+        except MargCalError:
+            shift = change.offset_after - change.offset_before
+            cals[k] = best.replace(offset=best.offset + (shift if k == 1 else -shift))
+    cut = int(np.searchsorted(times, change.t))
+    h = np.vstack([cals[0].apply(pts[:cut]), cals[1].apply(pts[cut:])])  # type: ignore[union-attr]
+    return best, truth, h
 
 
 def build_twin(
@@ -242,14 +321,23 @@ def build_twin(
         msg = f"temperature must hold {n} finite values"
         raise InputError(msg)
     sub = subsample(n, n_fit)
+    change: OffsetChange | None = None
     try:
         best = fit(pts[sub], model="sym", method="lm", norm=norm, max_iter=_MAX_ITER)
         truth = fit(pts[sub], model="diag", method="lm", norm=norm, sensor=sensor, max_iter=_MAX_ITER)
+        h = best.apply(pts)
     except MargCalError as exc:
-        msg = (f"the recording cannot be fitted ({exc}); a diagnosis needs a recording that turns the sensor "
-               "through many directions (a static recording only gives rest noise and quantisation)")
-        raise DegenerateDataError(msg) from exc
-    h = best.apply(pts)
+        change = locate_offset_change(times[sub], pts[sub])
+        if change is None:
+            msg = (f"the recording cannot be fitted ({exc}); a diagnosis needs a recording that turns the sensor "
+                   "through many directions (a static recording only gives rest noise and quantisation)")
+            raise DegenerateDataError(msg) from exc
+        try:
+            best, truth, h = _segment_fits(times, pts, sub, change, norm, sensor)
+        except MargCalError as exc2:
+            raise DegenerateDataError(_change_message(change, exc)) from exc2
+        log.info("offset change at t = %.2f s (step %.3g of the field radius): the twin is the fit of one side",
+                 change.t, change.relative_step)
     step = median_step_deg(h)
     skipped: dict[str, str] = {}
     if np.ptp(times) <= 0:
@@ -266,9 +354,11 @@ def build_twin(
     else:
         dirs = smooth_directions(h, t=times)
     try:
-        features_rec = stage_features(times, pts, tmp, sub, validator=validator, norm=norm, skip=frozenset(skipped))
+        features_rec = stage_features(times, pts, tmp, sub, validator=validator, norm=norm, skip=frozenset(skipped),
+                                      closed_form=change is not None)
     except MargCalError as exc:
-        msg = f"the recording's stage features cannot be computed ({exc})"
+        msg = (f"the recording's stage features cannot be computed ({exc})"
+               + ("" if change is None else f"; {_change_message(change, exc)}"))
         raise DegenerateDataError(msg) from exc
     r_raw = truth.norm / abs(float(np.linalg.det(truth.matrix))) ** (1.0 / 3.0)
     if rest_noise_raw is None:
@@ -287,4 +377,4 @@ def build_twin(
     for name, why in skipped.items():
         log.debug("stage %s skipped: %s", name, why)
     return Twin(t=times, raw=pts, temp=tmp, sub=sub, truth=truth, best=best, dirs=dirs, noise=noise, sensor=sensor,
-                norm=norm, validator=validator, features_rec=features_rec, skipped=skipped)
+                norm=norm, validator=validator, features_rec=features_rec, skipped=skipped, change=change)
