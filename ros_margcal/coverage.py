@@ -98,7 +98,7 @@ class Indicators:
 
         The Cramér–Rao bound of the least-determined ellipsoid parameter combination scales as
         ``sigma / sqrt(n lambda_min)``, so a 64-sample arc and a 600-sample arc with the same
-        ``e_info`` differ by half a decade here, and by a factor of three in calibration error.
+        ``e_info`` differ by about one decade here (log10 of 600/64), and by a factor of three in that bound.
         """
         return self.e_info + math.log10(max(self.n_points, 1))
 

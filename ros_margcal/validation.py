@@ -231,21 +231,28 @@ class FuzzyValidator:
             u[:, d] = np.clip((xs[:, d] - c[jd]) / width, 0.0, 1.0)
         return j, u
 
-    def _firing(self, xs: Array) -> Array:
-        """Firing strength of every rule for every row, (n, number of rules) (product t-norm, Eq. 20)."""
+    def _active_rules(self, xs: Array) -> list[tuple[NDArray[np.intp], Array]]:
+        """The 2^M rules that fire for each row: (flat rule index, firing strength) per corner of the
+        row's cell (product t-norm, Eq. 20); every other rule has strength 0 (complete partition)."""
         j, u = self._locate(xs)
-        n = xs.shape[0]
-        a = np.zeros((n, self.consequents.size))
-        rows = np.arange(n)
+        out = []
         for bits in self._corners:
             b = np.asarray(bits)
-            w = np.prod(np.where(b == 1, u, 1.0 - u), axis=1)
-            np.add.at(a, (rows, np.ravel_multi_index(tuple((j + b).T), self.n_mf)), w)
+            out.append((np.ravel_multi_index(tuple((j + b).T), self.n_mf), np.prod(np.where(b == 1, u, 1.0 - u), axis=1)))
+        return out
+
+    def _firing(self, xs: Array) -> Array:
+        """Firing strength of every rule for every row, (n, number of rules): the least-squares design."""
+        a = np.zeros((xs.shape[0], self.consequents.size))
+        rows = np.arange(xs.shape[0])
+        for idx, w in self._active_rules(xs):
+            np.add.at(a, (rows, idx), w)
         return a
 
     def _raw_output(self, xs: Array) -> Array:
         """Eq. 17: sum of consequents weighted by firing strengths (a complete partition: they sum to 1)."""
-        return self._firing(xs) @ self.consequents.ravel()
+        r = self.consequents.ravel()
+        return sum((w * r[idx] for idx, w in self._active_rules(xs)), np.zeros(xs.shape[0]))
 
     def _to_target(self, error: Array) -> Array:
         return np.log10(np.maximum(error, _LOG_FLOOR)) if self.target == "log" else error

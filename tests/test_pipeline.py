@@ -338,7 +338,8 @@ def test_replay_csv_writes_timeline_calibration_and_plot(
     assert (tmp_path / "c.png").stat().st_size > 1000
 
 
-def test_replay_uses_the_given_validator(tumbling_mag: sim.Recording, tmp_path: Path) -> None:
+def test_replay_uses_the_given_validator(tumbling_mag: sim.Recording, tmp_path: Path,
+                                        capsys: pytest.CaptureFixture[str]) -> None:
     """--validator replaces the shipped model: one that predicts 50 % error everywhere never lets a fit
     through; a corrupt file is refused with CalibrationFileError before anything runs."""
     import argparse
@@ -357,6 +358,8 @@ def test_replay_uses_the_given_validator(tumbling_mag: sim.Recording, tmp_path: 
     replay.register(parser.add_subparsers())
     args = parser.parse_args(["replay", str(csv_path), "--sensor", "mag", "-q", "--validator", str(tmp_path / "never.json")])
     assert args.func(args) == 0
+    out = capsys.readouterr().out
+    assert "with the validator" in out and "mag: collecting" in out and "offset:" not in out
     result = replay.replay(csv_path, sensor="mag", progress=False, validator=FuzzyValidator.load(tmp_path / "never.json"))
     cal = result["calibrators"]["mag"]
     assert cal.calibration is None and cal.status().predicted_error == pytest.approx(0.5)
