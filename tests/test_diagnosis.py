@@ -298,3 +298,18 @@ def test_real_attached_magnet_change_is_located(real_data_dir: Path) -> None:
     calm = read_recording(real_data_dir / "broad_02_undisturbed_slow_rotation_B_mag.csv", sensor="mag")
     sub = subsample(len(calm.t), 6000)
     assert locate_offset_change(calm.t[sub], calm.raw[sub]) is None
+
+
+def test_a_failed_holdout_keeps_the_diagnosis(monkeypatch: pytest.MonkeyPatch) -> None:
+    """--holdout on a recording whose first part cannot be diagnosed reports why instead of raising
+    (which would lose the whole recording's diagnosis, as on BROAD 36)."""
+    import ros_margcal.diagnosis as diagnosis_pkg
+    from ros_margcal.cli import diagnose as diagnose_cli
+    from ros_margcal.errors import ConvergenceError
+
+    def fails(*_a: object, **_k: object) -> None:
+        raise ConvergenceError("lm did not converge")
+
+    monkeypatch.setattr(diagnosis_pkg, "diagnose_holdout", fails)
+    h = diagnose_cli._holdout(object(), 0.5, {})
+    assert h == {"split": 0.5, "error": "lm did not converge"}
