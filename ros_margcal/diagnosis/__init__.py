@@ -3,7 +3,7 @@
 A recording is put against its simulated twin (``twin``: same directions and timestamps, the
 simulator's baseline model) stage by stage (``stages``); every effect of the simulator's registry is
 fitted to close the gap and ranked by the share it removes (``effects``); ``core.diagnose`` decides,
-``report`` writes the JSON and HTML; ``changes`` locates an offset step that keeps one calibration
+``downstream`` retrains the validator with the found effect, ``report`` writes the JSON and HTML; ``changes`` locates an offset step that keeps one calibration
 from fitting a recording. ``ros_margcal.bench.diagnosis`` checks it on recordings whose
 effect is withheld.
 """
@@ -11,7 +11,8 @@ effect is withheld.
 from __future__ import annotations
 
 from .changes import OffsetChange, locate_offset_change
-from .core import NONE_GAP, Diagnosis, diagnose, diagnose_holdout, validator_downstream
+from .core import NONE_GAP, Diagnosis, diagnose, diagnose_holdout
+from .downstream import validator_downstream
 from .effects import EffectFit, applicable_effects, equivalent_groups, fit_effect, rank_effects
 from .report import summary, write_report
 from .stages import STAGES, StageFeatures, rest_noise, stage_features, stage_gaps

@@ -19,14 +19,12 @@ mid-recording) gets its twin from the fit of one side of the step (``twin.Twin.c
 ``hard_iron_jump`` first when it removes within ``CHANGE_MARGIN`` of the top effect's share.
 
 ``diagnose_holdout`` fits on the first part of a recording and measures the shrink on the rest.
-``downstream`` adds the validator's view (see ``validator_downstream``).
+``downstream.validator_downstream`` adds the validator's view.
 """
 
 from __future__ import annotations
 
-import inspect
 import logging
-import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -35,7 +33,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ..errors import ConfigError, MargCalError
+from ..errors import ConfigError
 from .effects import (
     EffectFit,
     applicable_effects,
@@ -45,10 +43,10 @@ from .effects import (
     overall_gap,
     rank_effects,
 )
-from .stages import stage_gaps, validator_errors
+from .stages import stage_gaps
 from .twin import DEFAULT_N_FIT, Baseline, Twin, build_twin, mean_features
 
-__all__ = ["NONE_GAP", "Diagnosis", "diagnose", "diagnose_holdout", "validator_downstream"]
+__all__ = ["NONE_GAP", "Diagnosis", "diagnose", "diagnose_holdout"]
 
 log = logging.getLogger(__name__)
 
@@ -286,65 +284,3 @@ def diagnose_holdout(recording: Any, *, split: float = 0.5, **options: Any) -> d
             "gap_before": gap_before2, "gap_after": gap_after2,
             "shrink": 1.0 - gap_after2 / gap_before2 if gap_before2 > 0 else 0.0,
             "stages_before": before2, "stages_after": after2}
-
-
-def _retrain(validator: object, n_sets: int, seed: int, effects: dict[str, float] | None, duration_s: float) -> object:
-    """A validator like ``validator`` (inputs, partition, training options from its metadata) trained
-    on ``n_sets`` simulated sets with ``effects``, each spread over ``duration_s`` like the recording's."""
-    from .. import corpus  # local: the corpus pulls in the baselines, only needed here
-    from ..validation import FuzzyValidator
-
-    built = corpus.build_corpus(n_sets, seed, effects=effects, duration_s=duration_s if effects else None)
-    inputs = tuple(getattr(validator, "inputs", ("c_norm", "d_norm")))
-    n_mf = getattr(validator, "n_mf", 10)
-    n_mf = tuple(int(k) for k in np.atleast_1d(n_mf)) if np.ndim(n_mf) else int(n_mf)
-    meta = dict(getattr(validator, "metadata", {}) or {})
-    accepted = inspect.signature(FuzzyValidator.fit).parameters
-    kw = {k: meta[k] for k in ("repeats", "l_rate", "consequents", "ridge", "max_fpr") if k in meta and k in accepted}
-    out = FuzzyValidator(inputs=inputs, n_mf=n_mf)
-    return out.fit(built.matrix(list(inputs)), built.error, seed=seed, **kw)
-
-
-def validator_downstream(diag: Diagnosis, validator: object | None, *, n_sets: int = 400, seed: int = 0) -> dict[str, Any]:
-    """What the chosen effect does to the validator: predicted error before and after retraining.
-
-    The validator's prediction on a 300-sample set of the recording is compared with the measured
-    error (``stages.validator_errors``): ``before`` is ``validator`` itself; ``after`` is the same
-    kind of validator retrained on ``n_sets`` simulated sets *with* the effect at its fitted magnitude
-    (``corpus.build_corpus(effects=...)``), and ``control`` retrained on as many sets *without* it, so
-    the change the effect makes is not confused with the change a smaller training corpus makes.
-    ``log_error_*`` is ``|log10(measured / predicted)|`` (0 is a perfect prediction).
-    """
-    twin = diag.twin
-    if validator is None or twin is None:
-        return {"available": False, "reason": "no validator"}
-    pts = twin.raw[twin.sub]
-    pick = np.linspace(0, len(pts) - 1, min(300, len(pts))).astype(np.intp)
-    try:
-        predicted, measured = validator_errors(pts[pick], twin.best, validator)
-    except MargCalError as exc:
-        return {"available": False, "reason": f"validator stage failed: {exc}"}
-
-    def log_error(pred: float) -> float:
-        return abs(math.log10(max(measured, 1e-12) / max(pred, 1e-12)))
-
-    out: dict[str, Any] = {"predicted_before": predicted, "measured": measured, "log_error_before": log_error(predicted)}
-    best = diag.best
-    if diag.cause == "none" or best is None:
-        out.update(available=True, predicted_after=predicted, log_error_after=log_error(predicted),
-                   note="cause is none: no retraining")
-        return out
-    try:
-        span = float(twin.t[twin.sub][-1] - twin.t[twin.sub][0])  # the 300-sample set spans the whole recording
-        with_effect = _retrain(validator, n_sets, seed, {best.name: best.magnitude}, span)
-        control = _retrain(validator, n_sets, seed, None, span)
-        predicted_after, _ = validator_errors(pts[pick], twin.best, with_effect)
-        predicted_control, _ = validator_errors(pts[pick], twin.best, control)
-    except MargCalError as exc:
-        return {**out, "available": False, "reason": f"retraining failed: {exc}"}
-    out.update(available=True, effect=best.name, magnitude=best.magnitude, n_sets=n_sets,
-               predicted_after=predicted_after, predicted_control=predicted_control,
-               error_ratio_before=measured / max(predicted, 1e-12),
-               error_ratio_after=measured / max(predicted_after, 1e-12),
-               log_error_after=log_error(predicted_after), log_error_control=log_error(predicted_control))
-    return out

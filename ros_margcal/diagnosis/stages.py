@@ -53,9 +53,9 @@ from scipy.linalg import solve_triangular
 from scipy.special import sph_harm_y
 
 from ..calibration import Calibration
-from ..coverage import compute_indicators
 from ..errors import MargCalError
 from ..fitting import fit
+from .downstream import validator_errors
 
 __all__ = [
     "STAGES",
@@ -65,7 +65,6 @@ __all__ = [
     "sh_power",
     "stage_features",
     "stage_gaps",
-    "validator_errors",
 ]
 
 log = logging.getLogger(__name__)
@@ -96,7 +95,6 @@ _N_STEPS = 81
 _N_VALIDATOR_SET = 300
 _TINY = 1e-12
 _MAX_ITER = 400  # LM iterations: strong effects make the ellipsoid fit converge slowly
-_N_REFERENCE_DIRS = 400
 
 
 @dataclass
@@ -285,35 +283,6 @@ def _tail_features(r: Array) -> Array:
     skew = float((q99 + q01 - 2 * q50) / max(q99 - q01, _TINY))
     return np.array([_log10(float(np.quantile(dev, 0.999)) / sig), _log10(float(np.quantile(dev, 0.99)) / sig),
                      _log10(float(np.std(r)) / sig), skew])
-
-
-def _uniform_dirs() -> Array:
-    u = np.random.default_rng(20261121).normal(size=(_N_REFERENCE_DIRS, 3))
-    return u / np.linalg.norm(u, axis=1, keepdims=True)
-
-
-_UNIFORM = _uniform_dirs()
-
-
-def validator_errors(points: Array, reference: Calibration, validator: object) -> tuple[float, float]:
-    """Predicted and measured calibration error of a calibration set drawn from a recording.
-
-    The validator predicts from the coverage indicators of ``points`` (about the centre and radius of
-    a linear sphere fit, as the node does before its first calibration). The measured error is the
-    corpus label (``corpus.make_set``) with the recording's best fit on all samples, ``reference``,
-    standing in for the unknown truth: the RMS of ``|W (v - b)| / n - 1`` of the ``sym`` fit of
-    ``points`` over fixed uniform directions ``v = reference.inverse_apply(n_ref u)``.
-
-    Returns:
-        (predicted, measured), both as fractions of the norm.
-    """
-    sph = fit(points, model="eye", method="sphere", norm=None)
-    ind = compute_indicators(points, sph.offset, float(sph.norm))
-    predicted = float(validator.predict_indicators(ind))  # type: ignore[attr-defined]
-    cal = fit(points, model="sym", method="lm", norm=None)
-    raw_u = reference.inverse_apply(_UNIFORM * reference.norm)
-    rel = np.linalg.norm(cal.apply(raw_u), axis=1) / cal.norm - 1.0
-    return predicted, float(np.sqrt(np.mean(rel**2)))
 
 
 def stage_features(
