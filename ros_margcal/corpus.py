@@ -16,6 +16,11 @@ Each set is one simulated calibration attempt (Olivares et al. 2013, §4, pre-pr
    before it has a calibration — and the baseline scores of ``baselines.baseline_scores`` given the
    set's own ellipsoid fit.
 
+A second label serves the diagnosis (``diagnosis.downstream``), which retrains the validator with an
+effect and compares its prediction with the error *measured* on a recording, where no truth exists:
+with ``make_set(recording=k)`` the set is every ``k``-th sample of a simulated recording and its label
+is ``recording_error``, the error against that recording's best fit — the measured error's definition.
+
 Choices, documented: the noise std is log-uniform in 0.1–0.5 % of the norm (consumer MEMS
 magnetometers, accelerometers after the inactivity gate); sets hold 40–600 samples; the fit is the
 plain least-squares ``lm`` (the node's robust loss changes no label here — the simulator adds no
@@ -55,10 +60,14 @@ from .simulation import EFFECTS, directions, random_sensor, simulate
 __all__ = [
     "FAILED_ERROR",
     "FEATURES",
+    "MEASURE_DIRS",
     "Corpus",
     "build_corpus",
     "information_indicator",
+    "label_error",
     "make_set",
+    "recording_error",
+    "reference_readings",
 ]
 
 log = logging.getLogger(__name__)
@@ -218,61 +227,118 @@ def _indicator_frame(points: Array) -> tuple[Array, float]:
     return center, float(np.linalg.norm(points - center, axis=1).mean()) or 1.0
 
 
+def _fixed_uniform(n: int) -> Array:
+    u = np.random.default_rng(20261121).normal(size=(n, 3))
+    out: Array = u / np.linalg.norm(u, axis=1, keepdims=True)
+    return out
+
+
+MEASURE_DIRS: Array = _fixed_uniform(400)
+"""The fixed uniform directions a set's error against a recording's best fit is measured over
+(``recording_error``)."""
+
+
+def label_error(cal: Calibration, test_raw: Array) -> float:
+    """The label (step 3): RMS over the test readings ``test_raw`` of ``|W (v - b)| / norm - 1`` of the
+    fit ``cal``."""
+    rel = np.linalg.norm(cal.apply(test_raw), axis=1) / cal.norm - 1.0
+    return float(np.sqrt(np.mean(rel**2)))
+
+
+def reference_readings(reference: Calibration, dirs: Array) -> Array:
+    """Noiseless raw readings of the unit directions ``dirs`` by the sensor ``reference``."""
+    out: Array = reference.inverse_apply(dirs * reference.norm)
+    return out
+
+
+def recording_error(cal: Calibration, reference: Calibration) -> float:
+    """The error of a set's fit ``cal`` against the best fit ``reference`` of the recording the set was
+    drawn from, standing in for the truth: ``label_error`` over ``MEASURE_DIRS`` read by ``reference``.
+
+    The label of ``make_set(recording=k)`` and the measured error of a real recording's set
+    (``diagnosis.downstream.validator_errors``) are both this number.
+    """
+    return label_error(cal, reference_readings(reference, MEASURE_DIRS))
+
+
 _READOUT_RANDOM = ("noise", "quantization")
 _STATIC_EFFECTS = frozenset(name for name, e in EFFECTS.items() if not e.varying and name not in _READOUT_RANDOM)
 """Effects that are a property of the sensor (the same at every instant, not random read-out): the
-sensor that defines the label carries them."""
+sensor that defines the label of a set with effects (without ``recording``) carries them."""
 
 
-def _reference_points(truth: Calibration, dirs: Array, rng: np.random.Generator, static: dict[str, float],
-                      t: Array | None = None) -> Array:
-    """The label's test points for a sensor with effects ``static`` (at times ``t`` when given): the
-    noiseless readings of ``dirs`` with the effects, replaced by their best ellipsoid (``sym`` fit) read
-    at the same directions — the error the diagnosis measures on a recording
-    (``diagnosis.stages.validator_errors``) is against that recording's best fit over all its samples
-    too. Falls back to the readings themselves when they cannot be fitted."""
-    raw = simulate(truth, dirs, noise=0.0, rng=rng, t=t, effects=static).raw
+def _reference_points(truth: Calibration, dirs: Array, rng: np.random.Generator, static: dict[str, float]) -> Array:
+    """The label's test points for a sensor with the static effects ``static``: the noiseless readings
+    of ``dirs`` with the effects, replaced by their best ellipsoid (``sym`` fit) read at the same
+    directions. Falls back to the readings themselves when they cannot be fitted."""
+    raw = simulate(truth, dirs, noise=0.0, rng=rng, effects=static).raw
     try:
         ref = fit(raw, model="sym", method="lm", norm=None)
     except MargCalError as exc:
         log.debug("label reference with %s not fitted (%s): using the readings", static, exc)
         return raw
-    u = dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
-    out: Array = ref.inverse_apply(u * ref.norm)
+    return reference_readings(ref, dirs / np.linalg.norm(dirs, axis=1, keepdims=True))
+
+
+def _recording_times(n: int, k: int, duration_s: float | None) -> Array:
+    """Times of a recording holding each of ``n`` set directions for ``k`` samples: the set (every
+    ``k``-th sample) is spread evenly over ``duration_s`` (1 s apart when None)."""
+    dt = 1.0 if duration_s is None or n < 2 else duration_s / (n - 1)
+    out: Array = np.arange(n * k) * (dt / k)
     return out
 
 
 def make_set(seed: int, index: int, *, n_min: int = 40, n_max: int = 600, noise_range: tuple[float, float] = (1e-3, 5e-3),
              n_test: int = 400, model: str = "sym", method: str = "lm", loss: str = "linear",
              pattern: str | None = None, n: int | None = None, params: dict[str, Any] | None = None,
-             effects: dict[str, float] | None = None, duration_s: float | None = None) -> dict[str, Any]:
+             effects: dict[str, float] | None = None, duration_s: float | None = None,
+             recording: int | None = None, kind: str | None = None) -> dict[str, Any]:
     """Simulate, fit, label and describe set ``index`` of the corpus with ``seed``.
+
+    Two labels. By default the set is a calibration set on its own and the label its fit's error
+    against the true sensor (step 3). With ``recording=k`` the set is drawn from a recording, as the
+    diagnosis draws one from a real recording (``diagnosis.downstream``): the simulated recording holds
+    each of the set's directions for ``k`` samples (so it has the set's coverage and time course, like
+    a smooth motion sampled ``k`` times denser), every effect and the noise apply to all its samples,
+    the set is every ``k``-th sample, and the label is ``recording_error`` of the set's fit against the
+    recording's best fit — exactly what ``diagnosis.downstream.validator_errors`` measures on a real
+    recording, where no truth exists. A drift the whole recording shares then stays out of the label;
+    noise and what varies between samples of the set (bursts) go in.
 
     Args:
         seed: corpus seed; index: set number (the set draws from ``default_rng([seed, index])``).
         n_min, n_max: range of the set size (log-uniform).
         noise_range: range of the noise std as a fraction of the norm (log-uniform).
-        n_test: held-out uniform directions for the label.
+        n_test: held-out uniform directions for the label against the truth.
         model, method, loss: the fit whose error is the label (``fitting.fit``).
         pattern, n, params: force the coverage pattern, size and parameters (else random).
         effects: simulator effects (name -> magnitude) added to the set, those that apply to the
-            set's sensor kind (the diagnosis retrains the validator with the effect it found). The
-            label's sensor carries the static ones (``_STATIC_EFFECTS``, with the same random draws
-            as the set): the error is against that sensor's best ellipsoid (``_reference_points``),
-            as the diagnosis measures it on a recording; effects that vary in time and the read-out
-            ones stay out of the label. Without effects the set is exactly as before.
-        duration_s: with effects, the time span of the set (its samples evenly spread over it) and of
-            the label's sensor, which then carries the effects that vary in time too (a drift over
-            this span): the set is then like one drawn from a recording of that length, and the
-            label its error against the best fit of the whole recording. None: samples 1 s apart
-            and only the static effects in the label.
+            set's sensor kind. Without ``recording``, the label's sensor carries the static ones
+            (``_STATIC_EFFECTS``, with the same random draws as the set: the error is against that
+            sensor's best ellipsoid over uniform directions); effects that vary in time and the
+            read-out ones stay out of the label. Without effects and ``recording`` the set is exactly
+            as before effects existed.
+        duration_s: time span of the set (its samples evenly spread over it); None: 1 s apart.
+        recording: ``k >= 2``: label the set as drawn from a recording ``k`` times denser (above).
+        kind: force the sensor kind ("mag" or "accel"; else 60 % mag).
 
     Returns:
         A dict with ``features`` (len(FEATURES),), ``error``, ``baselines`` (len(BASELINES),),
-        ``pattern``, ``kind``, ``n_points``, ``noise``, ``points`` and ``fit`` (None if it failed).
+        ``pattern``, ``kind``, ``n_points``, ``noise``, ``points``, ``fit`` (None if it failed) and
+        ``reference`` (the recording's best fit with ``recording``, else None).
+
+    Raises:
+        ConfigError: ``recording`` below 2 or an unknown ``kind``.
     """
+    if recording is not None and recording < 2:
+        msg = f"recording must be at least 2 (samples of the recording per set sample), got {recording}"
+        raise ConfigError(msg)
+    if kind not in (None, "mag", "accel"):
+        msg = f"kind must be 'mag', 'accel' or None, got {kind!r}"
+        raise ConfigError(msg)
     rng = np.random.default_rng([seed, index])
-    kind = "mag" if rng.uniform() < 0.6 else "accel"
+    drawn_kind = "mag" if rng.uniform() < 0.6 else "accel"
+    kind = kind or drawn_kind
     truth = random_sensor(rng, kind, model="sym", gain_spread=float(rng.uniform(0.01, 0.2)),
                           skew=float(rng.uniform(0.0, 0.06)))
     noise = _log_uniform(rng, *noise_range)
@@ -282,26 +348,36 @@ def make_set(seed: int, index: int, *, n_min: int = 40, n_max: int = 600, noise_
     n = rand_n if n is None else int(n)
     dirs = directions(pattern, n, rng, **(params or {}))
     applied = {k: float(m) for k, m in (effects or {}).items() if kind in EFFECTS[k].sensors and m}
-    if duration_s is None:
-        label_fx = {k: m for k, m in applied.items() if k in _STATIC_EFFECTS}
-        t_set = t_test = None
+    reference: Calibration | None = None
+    if recording is not None:
+        t_rec = _recording_times(n, recording, duration_s)
+        rec_raw = simulate(truth, np.repeat(dirs, recording, axis=0), noise=noise, rng=rng, t=t_rec,
+                           effects=applied or None).raw
+        points = rec_raw[::recording]
     else:
-        label_fx = {k: m for k, m in applied.items() if k not in _READOUT_RANDOM}
-        t_set, t_test = np.linspace(0.0, duration_s, n), np.linspace(0.0, duration_s, n_test)
-    fx_rng = copy.deepcopy(rng) if label_fx else None  # the label's sensor: the same effect draws as the set's
-    points = simulate(truth, dirs, noise=noise, rng=rng, t=t_set, effects=applied or None).raw
-    test_dirs = directions("uniform", n_test, rng)
-    test_raw = simulate(truth, test_dirs, noise=0.0, rng=rng).raw
-    if fx_rng is not None:
-        test_raw = _reference_points(truth, test_dirs, fx_rng, label_fx, t_test)
+        t_set = None if duration_s is None else np.linspace(0.0, duration_s, n)
+        label_fx = {k: m for k, m in applied.items() if k in _STATIC_EFFECTS}
+        fx_rng = copy.deepcopy(rng) if label_fx else None  # the label's sensor: the same effect draws as the set's
+        points = simulate(truth, dirs, noise=noise, rng=rng, t=t_set, effects=applied or None).raw
+        test_dirs = directions("uniform", n_test, rng)
+        test_raw = simulate(truth, test_dirs, noise=0.0, rng=rng).raw
+        if fx_rng is not None:
+            test_raw = _reference_points(truth, test_dirs, fx_rng, label_fx)
     cal: Calibration | None
     try:
         cal = fit(points, model=model, method=method, norm=None, loss=loss)
-        rel = np.linalg.norm(cal.apply(test_raw), axis=1) / cal.norm - 1.0
-        error = float(np.sqrt(np.mean(rel**2)))
     except MargCalError as exc:
         log.debug("set %d (%s, n=%d): fit failed: %s", index, pattern, n, exc)
-        cal, error = None, FAILED_ERROR
+        cal = None
+    error = FAILED_ERROR
+    if cal is not None and recording is None:
+        error = label_error(cal, test_raw)
+    elif cal is not None:  # the recording's best fit: only needed (and costly) when the set's fit exists
+        try:
+            reference = fit(rec_raw, model="sym", method="lm", norm=None)
+            error = recording_error(cal, reference)
+        except MargCalError as exc:
+            log.debug("set %d (%s, n=%d): recording not fitted: %s", index, pattern, n, exc)
     if not math.isfinite(error) or error > FAILED_ERROR:
         error = FAILED_ERROR
     center, radius = _indicator_frame(points)
@@ -313,7 +389,8 @@ def make_set(seed: int, index: int, *, n_min: int = 40, n_max: int = 600, noise_
     else:
         bvals = np.array([np.nan] * len(BASELINES))
     return {"features": feats, "error": error, "baselines": bvals, "pattern": pattern, "kind": kind,
-            "n_points": n, "noise": noise, "points": points, "fit": cal, "params": params or {}}
+            "n_points": n, "noise": noise, "points": points, "fit": cal, "params": params or {},
+            "reference": reference}
 
 
 # -- many sets -------------------------------------------------------------------------------------
@@ -342,7 +419,7 @@ def build_corpus(n_sets: int, seed: int = 0, *, progress: bool | TextIO = False,
         seed: corpus seed.
         progress: True (stderr) or a stream to show a ``\\r`` counter on.
         **options: passed on to ``make_set`` (n_min, n_max, noise_range, n_test, model, method, effects,
-            duration_s).
+            duration_s, recording, kind).
     """
     if n_sets < 2:
         msg = f"n_sets must be >= 2, got {n_sets}"

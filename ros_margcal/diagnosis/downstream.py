@@ -1,9 +1,16 @@
 """Downstream: what the diagnosed effect does to the validator's predicted calibration error.
 
 ``validator_errors`` measures, on a calibration set drawn from a recording, the validator's predicted
-error and the measured one (the ``validator`` stage of ``stages`` uses it too); ``validator_downstream``
-retrains the validator on simulated sets with the diagnosed effect (and, as a control, without it) and
-compares the predictions.
+error and the measured one (the ``validator`` stage of ``stages`` uses it too). ``compare_validators``
+retrains the validator on simulated sets with an effect (and, as a control, without it) and compares
+the three predictions with the measured error; ``validator_downstream`` runs it on a diagnosis with
+the effect it found.
+
+Apples to apples: the measured error is the error of the set's fit against the recording's best fit
+over all its samples (there is no truth on a real recording); the simulated sets the validator is
+retrained on are labelled the same way (``corpus.make_set(recording=k)``: every ``k``-th sample of a
+simulated recording with the effect and the recording's noise, against that recording's best fit), by
+the same function (``corpus.recording_error``).
 """
 
 from __future__ import annotations
@@ -16,6 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..calibration import Calibration
+from ..corpus import build_corpus, recording_error
 from ..coverage import compute_indicators
 from ..errors import MargCalError
 from ..fitting import fit
@@ -23,29 +31,24 @@ from ..fitting import fit
 if TYPE_CHECKING:
     from .core import Diagnosis
 
-__all__ = ["validator_downstream", "validator_errors"]
+__all__ = ["N_SET", "compare_validators", "retrain_validator", "validator_downstream", "validator_errors"]
 
 Array = NDArray[np.float64]
 
-_N_REFERENCE_DIRS = 400
-
-
-def _uniform_dirs() -> Array:
-    u = np.random.default_rng(20261121).normal(size=(_N_REFERENCE_DIRS, 3))
-    return u / np.linalg.norm(u, axis=1, keepdims=True)
-
-
-_UNIFORM = _uniform_dirs()
+N_SET = 300
+"""Samples of the calibration set drawn (evenly spaced) from the recording."""
+_TINY = 1e-12
 
 
 def validator_errors(points: Array, reference: Calibration, validator: object) -> tuple[float, float]:
     """Predicted and measured calibration error of a calibration set drawn from a recording.
 
     The validator predicts from the coverage indicators of ``points`` (about the centre and radius of
-    a linear sphere fit, as the node does before its first calibration). The measured error is the
-    corpus label (``corpus.make_set``) with the recording's best fit on all samples, ``reference``,
-    standing in for the unknown truth: the RMS of ``|W (v - b)| / n - 1`` of the ``sym`` fit of
-    ``points`` over fixed uniform directions ``v = reference.inverse_apply(n_ref u)``.
+    a linear sphere fit, as the node does before its first calibration). The measured error is
+    ``corpus.recording_error``, the label of ``corpus.make_set(recording=k)``: with the recording's best
+    fit on all samples, ``reference``, standing in for the unknown truth, the RMS of
+    ``|W (v - b)| / n - 1`` of the ``sym`` fit of ``points`` over fixed uniform directions
+    ``v = reference.inverse_apply(n_ref u)``.
 
     Returns:
         (predicted, measured), both as fractions of the norm.
@@ -54,69 +57,131 @@ def validator_errors(points: Array, reference: Calibration, validator: object) -
     ind = compute_indicators(points, sph.offset, float(sph.norm))
     predicted = float(validator.predict_indicators(ind))  # type: ignore[attr-defined]
     cal = fit(points, model="sym", method="lm", norm=None)
-    raw_u = reference.inverse_apply(_UNIFORM * reference.norm)
-    rel = np.linalg.norm(cal.apply(raw_u), axis=1) / cal.norm - 1.0
-    return predicted, float(np.sqrt(np.mean(rel**2)))
+    return predicted, recording_error(cal, reference)
 
 
-
-def _retrain(validator: object, n_sets: int, seed: int, effects: dict[str, float] | None, duration_s: float) -> object:
-    """A validator like ``validator`` (inputs, partition, training options from its metadata) trained
-    on ``n_sets`` simulated sets with ``effects``, each spread over ``duration_s`` like the recording's."""
-    from .. import corpus  # local: the corpus pulls in the baselines, only needed here
+def retrain_validator(validator: object, n_sets: int, seed: int, effects: dict[str, float] | None, *,
+                      duration_s: float, recording: int, noise: float | None = None,
+                      kind: str | None = None) -> tuple[object, dict[str, Any]]:
+    """A validator like ``validator`` (inputs, partition, target, training options from its metadata)
+    trained on ``n_sets`` simulated sets with ``effects``, labelled as sets drawn from a recording
+    (``corpus.make_set(recording=recording)``), each spread over ``duration_s``, with white noise
+    ``noise`` (fraction of the field radius; None: the corpus' random range) on a ``kind`` sensor
+    (None: mixed). Returns it and a summary of its corpus."""
     from ..validation import FuzzyValidator
 
-    built = corpus.build_corpus(n_sets, seed, effects=effects, duration_s=duration_s if effects else None)
+    options: dict[str, Any] = {"effects": effects or None, "duration_s": duration_s, "recording": recording,
+                               "kind": kind}
+    if noise is not None:
+        options["noise_range"] = (noise, noise)
+    built = build_corpus(n_sets, seed, **options)
     inputs = tuple(getattr(validator, "inputs", ("c_norm", "d_norm")))
     n_mf = getattr(validator, "n_mf", 10)
     n_mf = tuple(int(k) for k in np.atleast_1d(n_mf)) if np.ndim(n_mf) else int(n_mf)
+    ctor: dict[str, Any] = {k: getattr(validator, k) for k in ("target", "max_error") if hasattr(validator, k)}
     meta = dict(getattr(validator, "metadata", {}) or {})
     accepted = inspect.signature(FuzzyValidator.fit).parameters
     kw = {k: meta[k] for k in ("repeats", "l_rate", "consequents", "ridge", "max_fpr") if k in meta and k in accepted}
-    out = FuzzyValidator(inputs=inputs, n_mf=n_mf)
-    return out.fit(built.matrix(list(inputs)), built.error, seed=seed, **kw)
+    out = FuzzyValidator(inputs=inputs, n_mf=n_mf, **ctor)
+    trained = out.fit(built.matrix(list(inputs)), built.error, seed=seed, **kw)
+    ok = built.error < 1.0
+    summary = {"n_sets": n_sets, "n_failed": int(built.meta["n_failed"]), "corpus_seed": seed,
+               "effects": dict(effects or {}), "duration_s": duration_s, "recording": recording, "noise": noise,
+               "kind": kind, "median_label": float(np.median(built.error[ok])) if ok.any() else float("nan")}
+    return trained, summary
+
+
+def _log_error(measured: float, predicted: float) -> float:
+    """``|log10(measured / predicted)|``: 0 is a perfect prediction, 1 a factor of ten."""
+    return abs(math.log10(max(measured, _TINY) / max(predicted, _TINY)))
+
+
+def compare_validators(points: Array, reference: Calibration, validator: object, effects: dict[str, float] | None,
+                       *, span_s: float, recording: int, noise: float | None = None, kind: str | None = None,
+                       n_sets: int = 400, seed: int = 0) -> dict[str, Any]:
+    """Predicted error of a recording's calibration set by three validators, against the measured error.
+
+    ``original`` is ``validator``; ``with_effect`` the same kind of validator retrained on ``n_sets``
+    simulated sets with ``effects``, ``control`` on as many sets without effects (same seed, so the same
+    sensors, patterns and noise), so the change the effect makes is not confused with the change the
+    retraining corpus makes. Both corpora are labelled as the measured error is defined (sets drawn
+    from a recording ``recording`` times denser, spread over ``span_s``, at the recording's ``noise``,
+    of its sensor ``kind``). Without ``effects``: ``original`` only.
+
+    Args:
+        points: the calibration set, raw readings (n, 3).
+        reference: the recording's best (``sym``) fit on all samples.
+        validator: a trained ``FuzzyValidator``.
+        effects: ``{name: magnitude}`` to retrain with, or None.
+        span_s: time span of the set on the recording, seconds.
+        recording: samples of the recording's best fit per sample of the set (>= 2).
+        noise: white noise std of the recording, fraction of the field radius (None: the corpus range).
+        kind: "mag" or "accel" (None: mixed).
+        n_sets, seed: size and seed of each retraining corpus.
+
+    Returns:
+        ``measured``, ``n_points``, ``span_s``, ``recording``, ``noise`` and ``validators``: name ->
+        ``{"predicted", "measured", "log_error", "ratio"}`` (ratio = measured / predicted, log_error =
+        ``|log10(ratio)|``) plus ``n_sets`` (None for the original) and, for the retrained ones, their
+        corpus (``n_failed``, ``corpus_seed``, ``effects``, ``duration_s``, ``median_label``, ...).
+
+    Raises:
+        MargCalError: the set cannot be fitted or a corpus cannot be built.
+    """
+    predicted, measured = validator_errors(points, reference, validator)
+    models: dict[str, tuple[object, dict[str, Any]]] = {"original": (validator, {"n_sets": None})}
+    if effects:
+        opts: dict[str, Any] = {"duration_s": span_s, "recording": recording, "noise": noise, "kind": kind}
+        models["with_effect"] = retrain_validator(validator, n_sets, seed, effects, **opts)
+        models["control"] = retrain_validator(validator, n_sets, seed, None, **opts)
+    table: dict[str, dict[str, Any]] = {}
+    for name, (model, summary) in models.items():
+        pred = predicted if model is validator else validator_errors(points, reference, model)[0]
+        table[name] = {"predicted": pred, "measured": measured, "log_error": _log_error(measured, pred),
+                       "ratio": measured / max(pred, _TINY), **summary}
+    return {"measured": measured, "n_points": len(points), "span_s": float(span_s), "recording": recording,
+            "noise": noise, "validators": table}
 
 
 def validator_downstream(diag: Diagnosis, validator: object | None, *, n_sets: int = 400, seed: int = 0) -> dict[str, Any]:
     """What the chosen effect does to the validator: predicted error before and after retraining.
 
-    The validator's prediction on a 300-sample set of the recording is compared with the measured
-    error (``stages.validator_errors``): ``before`` is ``validator`` itself; ``after`` is the same
-    kind of validator retrained on ``n_sets`` simulated sets *with* the effect at its fitted magnitude
-    (``corpus.build_corpus(effects=...)``), and ``control`` retrained on as many sets *without* it, so
-    the change the effect makes is not confused with the change a smaller training corpus makes.
-    ``log_error_*`` is ``|log10(measured / predicted)|`` (0 is a perfect prediction).
+    The validator's prediction on a ``N_SET``-sample set of the recording (evenly spaced over the
+    fitting subsample, so it spans the whole recording) is compared with the measured error
+    (``validator_errors``, against the best fit of that subsample) by ``compare_validators``:
+    ``original``, ``with_effect`` (retrained on ``n_sets`` simulated sets with the effect at its fitted
+    magnitude) and ``control`` (as many sets without it), the retraining sets at the twin's noise level
+    and labelled like the measured error. The flat keys ``predicted_before`` / ``_after`` / ``_control``
+    and ``log_error_*`` (``|log10(measured / predicted)|``, 0 is perfect) repeat the table for the
+    summary line.
     """
     twin = diag.twin
     if validator is None or twin is None:
         return {"available": False, "reason": "no validator"}
     pts = twin.raw[twin.sub]
-    pick = np.linspace(0, len(pts) - 1, min(300, len(pts))).astype(np.intp)
-    try:
-        predicted, measured = validator_errors(pts[pick], twin.best, validator)
-    except MargCalError as exc:
-        return {"available": False, "reason": f"validator stage failed: {exc}"}
-
-    def log_error(pred: float) -> float:
-        return abs(math.log10(max(measured, 1e-12) / max(pred, 1e-12)))
-
-    out: dict[str, Any] = {"predicted_before": predicted, "measured": measured, "log_error_before": log_error(predicted)}
+    pick = np.linspace(0, len(pts) - 1, min(N_SET, len(pts))).astype(np.intp)
+    ts = twin.t[twin.sub][pick]
+    span = float(ts[-1] - ts[0])
     best = diag.best
-    if diag.cause == "none" or best is None:
-        out.update(available=True, predicted_after=predicted, log_error_after=log_error(predicted),
+    retrain = diag.cause != "none" and best is not None
+    effects = {best.name: best.magnitude} if retrain and best is not None else None
+    noise = float(twin.noise) if math.isfinite(twin.noise) and twin.noise > 0 else None
+    kind = twin.sensor if twin.sensor in ("mag", "accel") else None
+    try:
+        cmp = compare_validators(pts[pick], twin.best, validator, effects, span_s=span,
+                                 recording=max(2, round(len(pts) / len(pick))), noise=noise, kind=kind,
+                                 n_sets=n_sets, seed=seed)
+    except MargCalError as exc:
+        return {"available": False, "reason": f"validator downstream failed: {exc}"}
+    v = cmp["validators"]
+    out: dict[str, Any] = {"available": True, **cmp, "predicted_before": v["original"]["predicted"],
+                           "log_error_before": v["original"]["log_error"]}
+    if not retrain or best is None:
+        out.update(predicted_after=out["predicted_before"], log_error_after=out["log_error_before"],
                    note="cause is none: no retraining")
         return out
-    try:
-        span = float(twin.t[twin.sub][-1] - twin.t[twin.sub][0])  # the 300-sample set spans the whole recording
-        with_effect = _retrain(validator, n_sets, seed, {best.name: best.magnitude}, span)
-        control = _retrain(validator, n_sets, seed, None, span)
-        predicted_after, _ = validator_errors(pts[pick], twin.best, with_effect)
-        predicted_control, _ = validator_errors(pts[pick], twin.best, control)
-    except MargCalError as exc:
-        return {**out, "available": False, "reason": f"retraining failed: {exc}"}
-    out.update(available=True, effect=best.name, magnitude=best.magnitude, n_sets=n_sets,
-               predicted_after=predicted_after, predicted_control=predicted_control,
-               error_ratio_before=measured / max(predicted, 1e-12),
-               error_ratio_after=measured / max(predicted_after, 1e-12),
-               log_error_after=log_error(predicted_after), log_error_control=log_error(predicted_control))
+    out.update(effect=best.name, magnitude=best.magnitude, n_sets=n_sets,
+               predicted_after=v["with_effect"]["predicted"], predicted_control=v["control"]["predicted"],
+               error_ratio_before=v["original"]["ratio"], error_ratio_after=v["with_effect"]["ratio"],
+               log_error_after=v["with_effect"]["log_error"], log_error_control=v["control"]["log_error"])
     return out
