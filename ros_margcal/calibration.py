@@ -63,6 +63,21 @@ class FitStats:
     converged: bool = True
     cost: float = 0.0
 
+    @classmethod
+    def _trusted(
+        cls, n_points: int, rms: float, max_abs: float, rms_relative: float, iterations: int, converged: bool, cost: float
+    ) -> FitStats:
+        """The same value as ``FitStats(...)`` without the frozen dataclass's field-by-field ``object.__setattr__``.
+
+        For ``fitting`` only (values of the right types); ``test_calibration`` checks the fields match.
+        """
+        stats = object.__new__(cls)
+        object.__setattr__(stats, "__dict__", {
+            "n_points": n_points, "rms": rms, "max_abs": max_abs, "rms_relative": rms_relative,
+            "iterations": iterations, "converged": converged, "cost": cost,
+        })  # fmt: skip
+        return stats
+
 
 def _as_matrix(x: ArrayLike, name: str) -> Array:
     arr = np.asarray(x, dtype=np.float64)
@@ -164,25 +179,26 @@ class Calibration:
             object.__setattr__(self, "covariance", _frozen(cov))
 
     @classmethod
-    def _trusted(cls, **values: Any) -> Calibration:
+    def _trusted(
+        cls, *, offset: Array, matrix: Array, norm: float = 1.0, model: str = "sym", method: str = "", sensor: str = "",
+        unit: str = "", stats: FitStats | None = None, covariance: Array | None = None,
+        parameter_names: tuple[str, ...] = (), stamp: float = 0.0,
+    ) -> Calibration:  # fmt: skip
         """Build from values a fit has already checked, skipping ``__post_init__``'s conversions and copies.
 
         For ``fitting`` only: float64 arrays of the right shapes made for this calibration (they are
-        frozen in place, not copied), an invertible matrix, a positive float norm, a known model.
+        frozen in place, not copied), an invertible matrix, a positive float norm, a known model, a tuple
+        of names. The keywords are the fields with their defaults (``test_calibration`` checks they match).
         """
-        if not values.keys() <= _FIELD_DEFAULTS.keys():
-            msg = f"Calibration has no field(s) {sorted(values.keys() - _FIELD_DEFAULTS.keys())}"
-            raise TypeError(msg)
-        state = {**_FIELD_DEFAULTS, **values}
-        for name in ("offset", "matrix"):
-            if state[name] is dataclasses.MISSING:
-                msg = f"Calibration needs {name}"
-                raise TypeError(msg)
-        for name in ("offset", "matrix", "covariance"):
-            if state[name] is not None:
-                state[name].flags.writeable = False
+        offset.flags.writeable = False
+        matrix.flags.writeable = False
+        if covariance is not None:
+            covariance.flags.writeable = False
         cal = object.__new__(cls)
-        cal.__dict__.update(state)  # what a frozen dataclass's __init__ stores, without __post_init__
+        object.__setattr__(cal, "__dict__", {  # what a frozen dataclass's __init__ stores, without __post_init__
+            "offset": offset, "matrix": matrix, "norm": norm, "model": model, "method": method, "sensor": sensor,
+            "unit": unit, "stats": stats, "covariance": covariance, "parameter_names": parameter_names, "stamp": stamp,
+        })  # fmt: skip
         return cal
 
     # -- use -------------------------------------------------------------------------------------
@@ -355,9 +371,6 @@ class Calibration:
             msg = f"YAML holds no calibration for sensor {sensor!r} (has {sorted(cals)})"
             raise CalibrationFileError(msg)
         return cals[sensor]
-
-
-_FIELD_DEFAULTS = {f.name: f.default for f in dataclasses.fields(Calibration)}
 
 
 def _dump(cals: dict[str, Calibration], node: str) -> str:

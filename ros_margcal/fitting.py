@@ -71,10 +71,12 @@ from .fitting_core import (
     abs_model,
     finish,
     gn_covariance,
+    gram,
     mad_sigma,
     pack,
     parameter_names,
     prepare,
+    raw_scale,
     resjac,
     unpack,
 )
@@ -99,6 +101,7 @@ SUPPORTED: dict[str, tuple[str, ...]] = {
 """Models each method can produce."""
 
 _F_SCALE_SIGMAS = 2.0  # default robust scale, in MAD-sigmas of the residuals
+_REAL, _INT = (int, float, np.floating), (int, np.integer)  # accepted types of norm and max_iter
 
 
 def residuals(cal: Calibration, points: ArrayLike) -> Array:
@@ -125,13 +128,13 @@ def _check_options(model: str, method: str, norm: float | None, loss: str, f_sca
     if loss != "linear" and method != "lm":
         msg = f"robust loss {loss!r} needs method 'lm' (method {method!r} is a closed-form fit)"
         raise ConfigError(msg)
-    if norm is not None and not (isinstance(norm, int | float | np.floating) and math.isfinite(norm) and norm > 0):
+    if norm is not None and not (isinstance(norm, _REAL) and math.isfinite(norm) and norm > 0):
         msg = f"norm must be a positive finite number or None (estimate it), got {norm!r}"
         raise ConfigError(msg)
     if f_scale is not None and not (math.isfinite(f_scale) and f_scale > 0):
         msg = f"f_scale must be a positive finite number, got {f_scale!r}"
         raise ConfigError(msg)
-    if isinstance(max_iter, bool) or not isinstance(max_iter, int | np.integer) or max_iter < 1:
+    if isinstance(max_iter, bool) or not isinstance(max_iter, _INT) or max_iter < 1:
         msg = f"max_iter must be a positive integer, got {max_iter!r}"
         raise ConfigError(msg)
 
@@ -250,7 +253,7 @@ def _bias_correction(z: Array, theta: Array, model: str, r: Array, jt: Array, n:
     jt_h = resjac(z + h * a, theta, model, n)[1]
     ef = jt @ c + (s2 / h) * (jt_h - jt).sum(axis=1)
     try:
-        return np.linalg.solve(jt @ jt.T, ef)
+        return np.linalg.solve(gram(jt), ef)
     except np.linalg.LinAlgError:
         return None
 
@@ -342,8 +345,7 @@ def fit(
     n_int = 1.0 if norm is None else float(norm)
     iterations, cov = 0, None
     if method == "lin_auto" and model == "diag":  # residuals and covariance from the rows it already holds
-        theta, r, cov = lin_auto_fit(prep.z, prep.scatter, n_int)
-        abs_model(theta, model, method)  # W > 0 already; rejects a singular W
+        params, rr, max_abs, cov = lin_auto_fit(prep.z, prep.scatter, n_int, prep.sc)  # a singular W is rejected
     else:
         if method == "lm":
             theta, r, jt, iterations, robust = _fit_lm(prep, model, n_int, scale_free, loss, f_scale, init, max_iter)
@@ -358,13 +360,15 @@ def fit(
         if fixed is not theta:
             theta = fixed
             r, jt = resjac(prep.z, theta, model, n_int)
+        rr = float(r @ r)
         if method != "mvee" and prep.n_points > theta.size:
             jw = jt if robust is None else jt * np.sqrt(robust)
-            sigma2 = float(r @ r) / (prep.n_points - theta.size) if robust is None else mad_sigma(r) ** 2
-            cov = gn_covariance(jw @ jw.T, sigma2)
+            sigma2 = rr / (prep.n_points - theta.size) if robust is None else mad_sigma(r) ** 2
+            cov = gn_covariance(gram(jw), sigma2, raw_scale(prep.sc, theta.size))
+        params, max_abs = theta.tolist(), float(np.abs(r).max())
     _log.debug("fit %s/%s: n=%d iterations=%d", method, model, prep.n_points, iterations)  # stats: cal.stats
     return finish(
-        prep, theta, r, cov, model=model, method=method, n_int=n_int, scale_free=scale_free,
+        prep, params, rr, max_abs, cov, model=model, method=method, n_int=n_int, scale_free=scale_free,
         iterations=iterations, sensor=sensor, unit=unit,
     )  # fmt: skip
 

@@ -6,10 +6,14 @@ the parameter vector ``theta = (b, W entries)`` of ``parameter_names`` and ``|W 
 Gauss-Newton covariance ``s^2 (J^T J)^-1`` (``fitting`` module docstring) back to raw units and builds
 the ``Calibration``; the small 3x3 systems are solved in closed form (a LAPACK call costs more).
 
-The scatter ``z z^T`` is formed as ``z @ c^T`` with ``c`` a copy of ``z``: numpy sends ``a @ a.T`` to BLAS
-``syrk``, which OpenBLAS runs 3-6x slower than ``gemm`` for these wide (3, N) shapes (N = 1000: 4.7 us
-against 1.3 us). Elsewhere (``fitting_linear.lin_auto_fit``) the products stay ``syrk``: measured in the
-benchmark's call sequence, each further large temporary costs more at N = 10000 than ``syrk`` loses.
+Products ``a b^T`` of wide (P, N) rows (the scatter ``z z^T``, normal matrices ``J J^T``) go through
+``gram``: numpy sends ``a @ a.T`` to BLAS ``syrk``, which OpenBLAS runs 3-6x slower than ``gemm`` for
+these shapes, and a copy to avoid it costs a pass; scipy's ``dgemm`` on the transposed (Fortran-ordered)
+views needs neither (N = 1000, P = 6: 2.5 us against 9.6 us for ``syrk``; N = 100: 0.8 against 1.4 us).
+One exception, ``X X^T`` in ``fitting_linear.lin_auto`` (Eq. 17), stays numpy's ``syrk``: lm starts from
+that solution, and gemm's different rounding would move lm's result within its stopping tolerance.
+The per-call overhead matters at N = 100 (a fit takes tens of microseconds), so the small results
+(``finish``, the closed-form 3x3 solves) are computed on Python floats, not numpy scalars.
 """
 
 from __future__ import annotations
@@ -20,6 +24,7 @@ from typing import cast
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.linalg.blas import dgemm
 from scipy.linalg.lapack import dposv
 
 from .calibration import Calibration, FitStats
@@ -31,12 +36,15 @@ __all__ = [
     "Prepared",
     "abs_model",
     "check_geometry",
+    "check_singular",
     "finish",
     "gn_covariance",
+    "gram",
     "mad_sigma",
     "pack",
     "parameter_names",
     "prepare",
+    "raw_scale",
     "resjac",
     "solve_spd3",
     "unpack",
@@ -49,9 +57,9 @@ OFF = ((0, 1), (0, 2), (1, 2))
 _B_NAMES = ("b_x", "b_y", "b_z")
 _W_NAMES = {"eye": ("w",), "diag": ("w_xx", "w_yy", "w_zz"), "sym": ("w_xx", "w_yy", "w_zz", "w_xy", "w_xz", "w_yz")}
 _OFF_J, _OFF_K = np.array([0, 0, 1]), np.array([1, 2, 2])
+_F64 = np.dtype(np.float64)
 _COPLANAR_RTOL = 1e-6
 _MAX_COND = 1e10  # condition of a fitted W beyond which the fit is called singular
-_EYE = {p: np.eye(p) for p in range(1, 11)}  # right-hand sides of gn_covariance (dposv copies them)
 _SINGULAR_MSG = "the normal equations are singular: the points do not determine the fit; cover more directions"
 
 
@@ -60,6 +68,14 @@ def parameter_names(model: str, scale_free: bool) -> tuple[str, ...]:
     if scale_free:
         return (*_B_NAMES, *(_W_NAMES[model] if model != "eye" else ()), "norm")
     return _B_NAMES + _W_NAMES[model]
+
+
+def gram(a: Array, b: Array | None = None) -> Array:
+    """``a b^T`` (default ``a a^T``) of C-ordered rows (P, N) and (Q, N), as a Fortran-ordered (P, Q) array.
+
+    BLAS ``dgemm`` on ``a.T``, ``b.T`` (Fortran-ordered views: no copy), not numpy's ``syrk`` (module docstring).
+    """
+    return cast(Array, dgemm(1.0, a.T, (a if b is None else b).T, trans_a=1))
 
 
 # -- parameter vectors <-> (b, W) ----------------------------------------------------------------
@@ -124,21 +140,27 @@ def abs_model(theta: Array, model: str, method: str) -> Array:
         aev = np.abs(ev)
         cond = float(aev.max() / max(aev.min(), 1e-300))
         fixed = theta if ev.min() > 0 else pack(b, (vec * aev) @ vec.T, model)
+    check_singular(cond, method)
+    return fixed
+
+
+def check_singular(cond: float, method: str) -> None:
+    """Reject a fitted W whose condition number ``cond`` exceeds 1e10 (ConvergenceError)."""
     if cond > _MAX_COND:
         msg = f"{method} produced a singular matrix (condition {cond:.3g}); cover more directions"
         raise ConvergenceError(msg)
-    return fixed
 
 
 # -- checks ---------------------------------------------------------------------------------------
 
 
 class Prepared:
-    """Centred, scaled points: ``z = (v - m) / sc`` as contiguous rows (3, N) and their scatter ``z z^T``."""
+    """Centred, scaled points: ``z = (v - m) / sc`` as contiguous rows (3, N) and their scatter ``z z^T``
+    (3x3, nested lists of floats: its users work on Python floats)."""
 
     __slots__ = ("m", "n_points", "sc", "scatter", "z")
 
-    def __init__(self, z: Array, m: Array, sc: float, scatter: Array) -> None:
+    def __init__(self, z: Array, m: Array, sc: float, scatter: list[list[float]]) -> None:
         self.z, self.m, self.sc, self.scatter, self.n_points = z, m, sc, scatter, z.shape[1]
 
 
@@ -150,32 +172,34 @@ def prepare(points: ArrayLike, n_params: int) -> Prepared:
         DegenerateDataError: too few, identical, collinear or coplanar points.
     """
     v = points if isinstance(points, np.ndarray) else None
-    fast = v is not None and v.dtype == np.float64 and v.ndim == 2 and v.shape[1] == 3 and v.shape[0] > 0
+    fast = v is not None and v.dtype == _F64 and v.ndim == 2 and v.shape[1] == 3 and v.shape[0] > 0
     if v is None or not fast:
         v = as_points(points, "points")  # the careful path: raises InputError with the details
     n_pts = v.shape[0]
     z: Array = np.array(v.T, order="C")  # (3, N): contiguous rows make every pass cheap
-    m = z.sum(axis=1) / n_pts
+    m = np.add.reduce(z, axis=1)
+    m /= n_pts
     mean = m.tolist()
     if fast and not math.isfinite(mean[0] + mean[1] + mean[2]):  # a NaN or Inf makes its row sum non-finite
         as_points(points, "points")  # the careful path: raises InputError with the details
     z -= m[:, None]  # centred: the fits are translation invariant
-    scatter = z @ z.copy().T  # z z^T from two buffers (module docstring: gemm, not syrk)
-    sc2 = float(scatter[0, 0] + scatter[1, 1] + scatter[2, 2]) / n_pts
+    s = gram(z).tolist()  # z z^T
+    sc2 = (s[0][0] + s[1][1] + s[2][2]) / n_pts
     sc = math.sqrt(sc2)
-    check_geometry(n_pts, scatter, max(*map(abs, mean), sc, 1e-300), n_params)
+    check_geometry(n_pts, s, max(*map(abs, mean), sc, 1e-300), n_params)
     z *= 1.0 / sc  # unit RMS radius: well-conditioned normal equations (Gietzelt Eqs. 11, 17)
-    return Prepared(z, m, sc, scatter / sc2)
+    return Prepared(z, m, sc, [[row[0] / sc2, row[1] / sc2, row[2] / sc2] for row in s])
 
 
-def check_geometry(n: int, scatter: Array, scale: float, n_params: int) -> None:
-    """Too few, identical, collinear or coplanar points -> DegenerateDataError (singular values of centred points)."""
+def check_geometry(n: int, scatter: Array | list[list[float]], scale: float, n_params: int) -> None:
+    """Too few, identical, collinear or coplanar points -> DegenerateDataError (singular values of centred
+    points; ``scatter`` is their 3x3 scatter, an array or nested lists)."""
     if n < n_params:
         msg = f"points: {n} given but this model has {n_params} parameters; collect at least {n_params} (better 10x more)"
         raise DegenerateDataError(msg)
     if _clearly_solid(scatter, scale):
         return
-    sv = np.sqrt(np.clip(np.linalg.eigvalsh(scatter), 0.0, None))  # ascending
+    sv = np.sqrt(np.clip(np.linalg.eigvalsh(np.asarray(scatter)), 0.0, None))  # ascending
     if sv[2] <= 1e-12 * scale:
         msg = f"points: all {n} points are identical (spread {sv[2]:.3g}); rotate the sensor through many directions"
         raise DegenerateDataError(msg)
@@ -190,14 +214,14 @@ def check_geometry(n: int, scatter: Array, scale: float, n_params: int) -> None:
         raise DegenerateDataError(msg)
 
 
-def _clearly_solid(scatter: Array, scale: float) -> bool:
+def _clearly_solid(scatter: Array | list[list[float]], scale: float) -> bool:
     """True when the invariants of the scatter prove every singular-value ratio above 1e-5 (no eigensolver).
 
     With eigenvalues ``l0 <= l1 <= l2``: ``tr >= l2``, ``c2 = sum of principal 2x2 minors`` lies in
     ``[l1 l2, 3 l1 l2]`` and ``det = l0 l1 l2``, so ``l1 / l2 >= c2 / (3 tr^2)`` and ``l0 / l2 >= det / (c2 tr)``.
     The bounds are used only far above rounding; anything closer goes to ``np.linalg.eigvalsh``.
     """
-    (a00, a01, a02), (_, a11, a12), (_, _, a22) = scatter.tolist()
+    (a00, a01, a02), (_, a11, a12), (_, _, a22) = scatter.tolist() if isinstance(scatter, np.ndarray) else scatter
     tr = a00 + a11 + a22
     c2 = a00 * a11 - a01 * a01 + a00 * a22 - a02 * a02 + a11 * a22 - a12 * a12
     det = a00 * (a11 * a22 - a12 * a12) - a01 * (a01 * a22 - a12 * a02) + a02 * (a01 * a12 - a11 * a02)
@@ -244,18 +268,30 @@ def mad_sigma(r: Array) -> float:
     return float(1.4826 * np.median(np.abs(r - np.median(r))))
 
 
-def gn_covariance(jtj: Array, sigma2: float) -> Array | None:
-    """``s^2 (J^T J)^-1``, or None when ``J^T J`` is not positive definite (singular).
+def gn_covariance(jtj: Array, sigma2: float, scale: list[float] | None = None) -> Array | None:
+    """``s^2 E (J^T J)^-1 E`` with ``E = diag(scale)`` (default the identity), or None when ``J^T J`` is
+    not positive definite (singular).
 
-    LAPACK's Cholesky solve ``dposv`` against the identity: the same inverse as ``np.linalg.inv`` for
-    a symmetric positive-definite matrix, at a third of the call overhead for these small matrices.
+    ``scale`` maps the covariance to other units (``raw_scale``) or undoes a diagonal scaling of ``J``.
+    LAPACK's Cholesky solve ``dposv`` against ``s E``: the same inverse as ``np.linalg.inv`` for a symmetric
+    positive-definite matrix, at a third of the call overhead for these small matrices; one product
+    with ``s E`` from the other side completes it.
     """
     p = jtj.shape[0]
-    _, inv, info = dposv(jtj, _EYE[p] if p in _EYE else np.eye(p))
+    s = math.sqrt(sigma2)
+    diag = np.zeros(p * p)  # s E, flat
+    diag[:: p + 1] = [s] * p if scale is None else [s * x for x in scale]
+    _, cov, info = dposv(jtj, diag.reshape(p, p))  # s (J^T J)^-1 E, in Fortran order
     if info != 0:
         return None
-    inv *= sigma2
-    return cast(Array, inv)  # float64 in, float64 out
+    cov_t = cov.T  # C-ordered view (cheaper to broadcast over)
+    cov_t *= diag[:: p + 1]  # s^2 E (J^T J)^-1 E, symmetric
+    return cast(Array, cov)  # float64 in, float64 out
+
+
+def raw_scale(sc: float, n_par: int) -> list[float]:
+    """Factors from internal to raw parameter units: ``b = m + sc b_z`` and ``W = W_z / sc``."""
+    return [sc, sc, sc] + [1.0 / sc] * (n_par - 3)
 
 
 def scale_free_map(w_v: Array, mat_v: Array, model: str, n_int: float) -> tuple[float, Array]:
@@ -278,39 +314,34 @@ def scale_free_map(w_v: Array, mat_v: Array, model: str, n_int: float) -> tuple[
 
 
 def finish(
-    prep: Prepared, theta: Array, r: Array, cov: Array | None, *, model: str, method: str, n_int: float,
-    scale_free: bool, iterations: int, sensor: str, unit: str,
+    prep: Prepared, theta: list[float], rr: float, max_abs: float, cov: Array | None, *, model: str, method: str,
+    n_int: float, scale_free: bool, iterations: int, sensor: str, unit: str,
 ) -> Calibration:  # fmt: skip
     """The Calibration of an internal solution: back to raw units (``b = m + sc b_z``, ``W = W_z / sc``),
     the scale-free convention when the norm was estimated, residual statistics and covariance.
 
-    ``theta`` must have passed ``abs_model`` (W positive definite, not singular) and ``cov`` must be
-    new (it is frozen in place): the Calibration is built without re-validating them.
+    ``theta`` is the parameter vector as a list of floats (the small arrays are built from them), ``rr``
+    and ``max_abs`` are ``r^T r`` and ``max |r_i|`` of its residuals. ``theta`` must have passed
+    ``abs_model`` (W positive definite, not singular) and ``cov`` must be in raw units (``gn_covariance``
+    with ``raw_scale``) and new (it is frozen in place): the Calibration is built without re-validating them.
     """
-    sc, n_pts, n_par = prep.sc, prep.n_points, theta.size
-    b_z, mat_z = unpack(theta, model)
-    b, mat = prep.m + sc * b_z, mat_z / sc
-    if cov is not None:
-        dsc = np.array([sc, sc, sc] + [1.0 / sc] * (n_par - 3))
-        cov *= dsc
-        cov *= dsc[:, None]
+    sc, n_pts = prep.sc, prep.n_points
+    m0, m1, m2 = prep.m.tolist()
+    b = np.array([m0 + sc * theta[0], m1 + sc * theta[1], m2 + sc * theta[2]])
+    w = [x / sc for x in theta[3:]]
+    if model == "sym":
+        mat = np.array([[w[0], w[3], w[4]], [w[3], w[1], w[5]], [w[4], w[5], w[2]]])
+    else:
+        mat = np.zeros((3, 3))
+        mat[0, 0], mat[1, 1], mat[2, 2] = w if model == "diag" else w * 3
     est_norm = n_int
     if scale_free:
-        c, tmap = scale_free_map(theta[3:] / sc, mat, model, n_int)
-        mat, est_norm, r = mat / c, n_int / c, r / c
+        c, tmap = scale_free_map(np.array(w), mat, model, n_int)
+        mat, est_norm, rr, max_abs = mat / c, n_int / c, rr / (c * c), max_abs / c
         if cov is not None:
             cov = tmap @ cov @ tmap.T
-    rr = float(r @ r)
     rms = math.sqrt(rr / n_pts)
-    stats = FitStats(
-        n_points=n_pts,
-        rms=rms,
-        max_abs=float(np.abs(r).max()),
-        rms_relative=rms / est_norm,
-        iterations=int(iterations),
-        converged=True,
-        cost=0.5 * rr,
-    )
+    stats = FitStats._trusted(n_pts, rms, max_abs, rms / est_norm, int(iterations), True, 0.5 * rr)
     return Calibration._trusted(
         offset=b,
         matrix=mat,

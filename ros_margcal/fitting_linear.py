@@ -39,7 +39,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .errors import ConvergenceError, DegenerateDataError
-from .fitting_core import gn_covariance, solve_spd3
+from .fitting_core import check_singular, gn_covariance, gram, solve_spd3
 
 __all__ = ["algebraic", "lin_auto", "lin_auto_fit", "mvee", "sphere", "sqrt_pd"]
 
@@ -48,12 +48,13 @@ Array = NDArray[np.float64]
 _MVEE_ACCEPT = 1e-4  # optimality gap accepted when Khachiyan stalls on a degenerate support
 
 
-def sphere(z: Array, scatter: Array, scratch: Array | None = None) -> tuple[Array, float]:
-    """Gietzelt step 1, Eqs. 5-12: centre ``o`` and radius ``r`` of the best sphere (``scatter = z z^T``).
+def sphere(z: Array, scatter: list[list[float]], scratch: Array | None = None) -> tuple[Array, float]:
+    """Gietzelt step 1, Eqs. 5-12: centre ``o`` and radius ``r`` of the best sphere (``scatter = z z^T``
+    as nested lists, ``fitting_core.Prepared``).
 
     ``scratch``, if given, is a (3, N) buffer it may overwrite (saves an allocation).
     """
-    o, r2 = _sphere_centre(z, scatter.tolist(), scratch)
+    o, r2 = _sphere_centre(z, scatter, scratch)
     return np.array(o), math.sqrt(r2)
 
 
@@ -64,9 +65,9 @@ def _sphere_centre(z: Array, s: list[list[float]], scratch: Array | None) -> tup
     and on centred data of unit RMS radius ``sum_i |z_i|^2 = tr(z z^T)`` gives ``A`` without a pass.
     """
     sq = np.multiply(z, z, out=scratch)
-    zq = [a + b + c for a, b, c in (z @ sq.T).tolist()]
-    bcd = solve_spd3(s, zq)  # -(B, C, D) of Eq. 11 (block diagonal on centred data)
-    o = [0.5 * x for x in bcd]  # o = -(B, C, D) / 2, Eq. 7b-d
+    (a0, a1, a2), (b0, b1, b2), (c0, c1, c2) = gram(z, sq).tolist()  # sum_i z_ij z_ik^2
+    bx, by, bz = solve_spd3(s, [a0 + a1 + a2, b0 + b1 + b2, c0 + c1 + c2])  # -(B, C, D), Eq. 11 (block diagonal)
+    o = [0.5 * bx, 0.5 * by, 0.5 * bz]  # o = -(B, C, D) / 2, Eq. 7b-d
     r2 = o[0] * o[0] + o[1] * o[1] + o[2] * o[2] + (s[0][0] + s[1][1] + s[2][2]) / z.shape[1]  # Eq. 12
     if not r2 > 0:
         msg = "sphere fit found no real radius (|o|^2 - A <= 0); the points do not lie on a closed surface"
@@ -74,50 +75,67 @@ def _sphere_centre(z: Array, s: list[list[float]], scratch: Array | None) -> tup
     return o, r2
 
 
-def lin_auto(z: Array, scatter: Array) -> tuple[Array, list[float], Array]:
+def lin_auto(z: Array, scatter: list[list[float]]) -> tuple[Array, list[float], Array]:
     """Gietzelt LinAutoCalibration, Eqs. 13-17: centre ``o`` (step 1), ``t = 1/s^2`` (step 2), and the rows.
 
-    The rows are ``[d; X]`` (6, N): ``d_i = z_i - o`` and its squares ``X_i, Y_i, Z_i`` (Eq. 14a-c).
+    ``scatter = z z^T`` as nested lists. The rows are ``[d; X]`` (6, N): ``d_i = z_i - o`` and its squares
+    ``X_i, Y_i, Z_i`` (Eq. 14a-c).
     """
     n_pts = z.shape[1]
     rows = np.empty((6, n_pts))
-    s = scatter.tolist()
+    s = scatter
     o, _ = _sphere_centre(z, s, rows[3:])
     oa = np.array(o)
     np.subtract(z, oa[:, None], out=rows[:3])
     xyz = np.multiply(rows[:3], rows[:3], out=rows[3:])  # X_i, Y_i, Z_i, Eq. 14a-c
     # right-hand side of Eq. 17: sum_i X_i = sum_i (z_ix - o_x)^2 = scatter_xx + N o_x^2 (centred z)
     rhs = [s[0][0] + n_pts * o[0] * o[0], s[1][1] + n_pts * o[1] * o[1], s[2][2] + n_pts * o[2] * o[2]]
-    t = solve_spd3(xyz @ xyz.T, rhs)  # Eq. 17
+    t = solve_spd3(xyz @ xyz.T, rhs)  # Eq. 17 (numpy's syrk, not gram: lm starts here and keeps its rounding)
     if min(t) <= 0:
         msg = f"LinAutoCalibration step 2 found t = 1/s^2 <= 0 ({t}): not an ellipsoid; cover more directions"
         raise DegenerateDataError(msg)
     return oa, t, rows
 
 
-def lin_auto_fit(z: Array, scatter: Array, n: float) -> tuple[Array, Array, Array | None]:
-    """LinAutoCalibration (diag model) with its residuals and Gauss-Newton covariance (module docstring).
+def lin_auto_fit(
+    z: Array, scatter: list[list[float]], n: float, sc: float
+) -> tuple[list[float], float, float, Array | None]:  # fmt: skip
+    """LinAutoCalibration (diag model) with its residual statistics and Gauss-Newton covariance (module docstring).
+
+    ``scatter = z z^T`` as nested lists and ``sc`` the scale of ``z`` (``fitting_core.prepare``): the
+    covariance comes out in raw units.
 
     Returns:
-        ``theta = (o, w)`` with ``W = diag(w) = n diag(1/s)`` (Eq. 15a-c), the residuals ``|W d_i| - n``
-        and ``s^2 (J^T J)^-1`` (None when there are no more points than the 6 parameters).
+        ``theta = (o, w)`` as a list, with ``W = diag(w) = n diag(1/s)`` (Eq. 15a-c); ``r^T r`` and
+        ``max |r_i|`` of the residuals ``r_i = |W d_i| - n``; ``s^2 (J^T J)^-1`` in raw units (None when
+        there are no more points than the 6 parameters).
+
+    Raises:
+        ConvergenceError: W is singular (condition above 1e10, as ``fitting_core.abs_model``).
     """
     n_pts = z.shape[1]
     o, t, rows = lin_auto(z, scatter)
-    w = [n * math.sqrt(ti) for ti in t]
-    w2 = [n * n * ti for ti in t]
+    tx, ty, tz = t
+    w = [n * math.sqrt(tx), n * math.sqrt(ty), n * math.sqrt(tz)]  # > 0: lin_auto checked t > 0
+    check_singular(max(w) / max(min(w), 1e-300), "lin_auto")
+    w2 = [n * n * tx, n * n * ty, n * n * tz]
     rho = np.array(w2) @ rows[3:]
     np.sqrt(rho, out=rho)  # |W d_i| = sqrt(sum_j w_j^2 X_ij) for diagonal W
-    theta = np.array(o.tolist() + w)
+    theta = o.tolist() + w
+    lo, hi = float(rho.min()), float(rho.max())
     if n_pts <= 6:
-        return theta, rho - n, None
-    rows /= np.maximum(rho, 1e-300, out=rho)  # K = [d; X] / rho
+        r = rho - n
+        return theta, float(r @ r), max(hi - n, n - lo), None
+    if lo < 1e-300:  # a point at the centre (d_i = 0): K_i = 0 below, not 0 / 0
+        np.maximum(rho, 1e-300, out=rho)
+        lo, hi = max(lo, 1e-300), max(hi, 1e-300)
+    rows /= rho  # K = [d; X] / rho
     r = np.subtract(rho, n, out=rho)  # the residuals, in place (rho is not needed any more)
-    # J^T = D K with D = diag(-w^2, w): scale the rows in place, then one product (no large temporaries:
-    # at N = 10000 a second (6, N) or (3, N) buffer costs more than syrk loses, fitting_core docstring)
-    rows *= np.array([-w2[0], -w2[1], -w2[2], *w])[:, None]
-    jtj = rows @ rows.T
-    return theta, r, gn_covariance(jtj, float(r @ r) / (n_pts - 6))
+    rr = float(r @ r)
+    # J^T J = D (K K^T) D with D = diag(-w^2, w), so s^2 (J^T J)^-1 = s^2 D^-1 (K K^T)^-1 D^-1: D joins the
+    # scaling to raw units (fitting_core.raw_scale) in gn_covariance, with no pass over the (6, N) rows
+    scale = [-sc / w2[0], -sc / w2[1], -sc / w2[2], 1.0 / (sc * w[0]), 1.0 / (sc * w[1]), 1.0 / (sc * w[2])]
+    return theta, rr, max(hi - n, n - lo), gn_covariance(gram(rows), rr / (n_pts - 6), scale)
 
 
 def algebraic(z: Array) -> tuple[Array, Array]:
@@ -125,7 +143,7 @@ def algebraic(z: Array) -> tuple[Array, Array]:
     x, y, w = z
     d = np.stack([x * x, y * y, w * w, 2 * x * y, 2 * x * w, 2 * y * w, 2 * x, 2 * y, 2 * w])
     try:
-        p = np.linalg.solve(d @ d.T, d.sum(axis=1))
+        p = np.linalg.solve(gram(d), d.sum(axis=1))
     except np.linalg.LinAlgError as exc:
         msg = "algebraic fit: the quadric is not determined by these points (singular normal matrix); cover more directions"
         raise DegenerateDataError(msg) from exc

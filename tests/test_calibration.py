@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+import inspect
 from pathlib import Path
 
 import numpy as np
@@ -185,10 +187,34 @@ def test_trusted_constructor_freezes_and_checks_fields() -> None:
     fast = Calibration._trusted(offset=offset, matrix=matrix, norm=2.0, model="diag")
     assert fast.allclose(Calibration(offset, matrix, 2.0, model="diag"), rtol=0)
     assert not fast.offset.flags.writeable and fast.stats is None and fast.parameter_names == ()
-    with pytest.raises(TypeError, match="no field"):
-        Calibration._trusted(offset=offset, matrix=matrix, bogus=1)
-    with pytest.raises(TypeError, match="needs matrix"):
-        Calibration._trusted(offset=offset)
+    assert vars(fast) == vars(Calibration(offset, matrix, 2.0, model="diag")) | {"offset": offset, "matrix": matrix}
+    with pytest.raises(TypeError, match="unexpected keyword argument 'bogus'"):
+        Calibration._trusted(offset=offset, matrix=matrix, bogus=1)  # type: ignore[call-arg]
+    with pytest.raises(TypeError, match="missing 1 required keyword-only argument: 'matrix'"):
+        Calibration._trusted(offset=offset)  # type: ignore[call-arg]
+
+
+def test_trusted_constructor_keywords_are_the_fields() -> None:
+    """``_trusted`` spells out every dataclass field with its default: a new field must be added there too."""
+    params = inspect.signature(Calibration._trusted).parameters
+    fields = dataclasses.fields(Calibration)
+    assert list(params) == [f.name for f in fields]
+    assert all(p.kind is inspect.Parameter.KEYWORD_ONLY for p in params.values())
+    for f in fields:
+        expected = inspect.Parameter.empty if f.default is dataclasses.MISSING else f.default
+        assert params[f.name].default == expected, f.name
+
+
+def test_trusted_fit_stats_equal_the_checked_ones() -> None:
+    """``FitStats._trusted`` takes the fields in order and builds an equal, frozen value."""
+    params = inspect.signature(FitStats._trusted).parameters
+    assert list(params) == [f.name for f in dataclasses.fields(FitStats)]
+    values = (100, 0.5, 1.5, 0.01, 3, True, 12.5)
+    fast = FitStats._trusted(*values)
+    assert fast == FitStats(*values) and hash(fast) == hash(FitStats(*values))
+    assert dataclasses.asdict(fast) == dataclasses.asdict(FitStats(*values))
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        fast.rms = 1.0  # type: ignore[misc]
 
 
 def test_arrays_are_read_only(true_cal: Calibration) -> None:

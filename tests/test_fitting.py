@@ -15,7 +15,7 @@ from ros_margcal.calibration import Calibration, load_calibrations
 from ros_margcal.cli import calibrate as calibrate_cli
 from ros_margcal.errors import ConfigError, ConvergenceError, DegenerateDataError, InputError, MargCalError
 from ros_margcal.fitting import METHODS, SUPPORTED, fit, residuals
-from ros_margcal.fitting_core import check_geometry, gn_covariance, solve_spd3
+from ros_margcal.fitting_core import check_geometry, check_singular, gn_covariance, gram, solve_spd3
 
 Array = np.ndarray
 
@@ -190,7 +190,6 @@ def test_closed_form_solve_matches_lapack_and_rejects_singular(rng: np.random.Ge
         solve_spd3(np.outer([1.0, 2.0, 3.0], [1.0, 2.0, 3.0]), b)
 
 
-
 @pytest.mark.parametrize("p", [6, 9, 10])
 def test_gn_covariance_is_the_scaled_inverse_and_none_when_singular(p: int, rng: np.random.Generator) -> None:
     """The Cholesky-based covariance equals s^2 inv(J^T J) and is None for a rank-deficient J^T J."""
@@ -200,6 +199,33 @@ def test_gn_covariance_is_the_scaled_inverse_and_none_when_singular(p: int, rng:
     np.testing.assert_allclose(cov, 0.25 * np.linalg.inv(jt @ jt.T), rtol=1e-10, atol=0)
     jt[-1] = 0.0  # a parameter the residuals do not depend on: singular normal matrix
     assert gn_covariance(jt @ jt.T, 0.25) is None
+
+
+def test_gram_is_the_product_of_the_rows(rng: np.random.Generator) -> None:
+    """gram(a, b) = a b^T and gram(a) = a a^T (BLAS gemm on the transposed views), for wide and narrow rows."""
+    for n in (5, 100, 3000):
+        a, b = rng.normal(size=(6, n)), rng.normal(size=(3, n))
+        np.testing.assert_allclose(gram(a), a @ a.T, rtol=1e-12, atol=1e-12 * n)
+        np.testing.assert_allclose(gram(a, b), a @ b.T, rtol=1e-12, atol=1e-12 * n)
+        assert gram(a[:, ::2]).shape == (6, 6)  # a non-contiguous view is copied, not misread
+        np.testing.assert_allclose(gram(a[:, ::2]), a[:, ::2] @ a[:, ::2].T, rtol=1e-12, atol=1e-12 * n)
+
+
+def test_gn_covariance_scale_maps_units(rng: np.random.Generator) -> None:
+    """With a scale vector e the covariance is s^2 diag(e) (J^T J)^-1 diag(e) (signs included)."""
+    jt = rng.normal(size=(6, 50))
+    e = [2.0, -0.5, 3.0, 0.1, -7.0, 1.0]
+    cov = gn_covariance(gram(jt), 0.3, e)
+    assert cov is not None
+    np.testing.assert_allclose(cov, 0.3 * np.diag(e) @ np.linalg.inv(jt @ jt.T) @ np.diag(e), rtol=1e-10, atol=0)
+
+
+def test_singular_matrix_check() -> None:
+    """A fitted W with condition above 1e10 is a ConvergenceError naming the method; below it passes."""
+    check_singular(9e9, "lin_auto")
+    with pytest.raises(ConvergenceError, match="lin_auto produced a singular matrix"):
+        check_singular(2e10, "lin_auto")
+
 
 @settings(max_examples=25, deadline=None)
 @given(

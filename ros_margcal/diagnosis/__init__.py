@@ -3,9 +3,9 @@
 A recording is put against its simulated twin (``twin``: same directions and timestamps, the
 simulator's baseline model) stage by stage (``stages``); every effect of the simulator's registry is
 fitted to close the gap and ranked by the share it removes (``effects``); ``core.diagnose`` decides,
-``downstream`` retrains the validator with the found effect, ``report`` writes the JSON and HTML; ``changes`` locates an offset step that keeps one calibration
-from fitting a recording. ``ros_margcal.bench.diagnosis`` checks it on recordings whose
-effect is withheld.
+``downstream`` retrains the validator with the found effect, ``report`` writes the JSON and HTML;
+``changes`` locates an offset step that keeps one calibration from fitting a recording.
+``ros_margcal.bench.diagnosis`` checks it on recordings whose effect is withheld.
 """
 
 from __future__ import annotations
