@@ -6,7 +6,9 @@ observable effect of the registry (``effects.rank_effects``) and decides:
 
 - ``where``: the stage with the largest gap;
 - ``cause``: ``"none"`` when the recording is within the baseline's spread (every stage gap below
-  ``NONE_GAP``), else the effect whose fitted magnitude removes the largest share of the gap — or
+  ``NONE_GAP``), else the effect whose fitted magnitude removes the largest share of the gap (when an
+  effect of another group comes within ``effects.CLOSE_MARGIN`` of it, the one the recording is closer
+  to on the features that separate the two, ``effects.separate_close_calls``) — or
   its group's name when the group holds several applicable effects (``ellipsoid_shape``, and
   ``slow_drift`` = bias drift or temperature on a recording without a temperature column: they
   cannot be told apart, so no guess is made between them); ``"unexplained"`` when the gap is clear but no

@@ -6,10 +6,20 @@ own generator, so changing ``m`` only rescales it). The gap of the recording aga
 those twins, measured with the *baseline's* spread (``stages.stage_gaps``), is a function of ``m``;
 the overall gap is the RMS of the stage gaps. The magnitude is found by a 1-D search: a log-spaced
 grid over the effect's ``magnitude_range`` then a golden-section refinement (in ``log m``) around the
-best grid point. ``shrink = 1 - gap_after / gap_before`` is the share of the gap the effect removes.
+best grid point. When the best grid point is the top of the range and the effect has a ``limit``, the
+grid is extended upwards (up to just below the limit) until the gap rises again: the twin's own sensor
+is fitted to the recording, so a strong effect that distorts that fit (clipping pulls the fitted
+ellipsoid in) may need a larger magnitude in the twin than the recording's truth had. Effects without
+a limit keep their range (beyond it they would only stand in for other effects at unphysical sizes).
+``shrink = 1 - gap_after / gap_before`` is the share of the gap the effect removes.
 The leading effects are then evaluated once more at their fitted magnitudes on every seed of the
 baseline's spread (``rank_effects(refine_seeds=...)``), so that two effects that both remove most of
-the gap are compared on more twins than the search used.
+the gap are compared on more twins than the search used. An effect of another group whose shrink is
+within ``CLOSE_MARGIN`` of the top one's is then weighed against it on the features that separate
+their twins only (``separate_close_calls``): a time effect has to beat a static one, or a drift a
+temperature effect, on the evidence that tells them apart, not on the size both reproduce. The top
+effect's magnitude is finally re-fitted on those seeds (``_refine_magnitude``), since the search's few
+seeds are the same for every recording.
 
 Effects with ``observable=False`` (misalignment) cannot change a norm-based recording and are not
 fitted but listed as unobservable; effects sharing a ``group`` (non-orthogonality and symmetric soft
@@ -31,6 +41,7 @@ from .stages import STAGE_FLOORS, stage_gaps
 from .twin import Baseline, Twin, mean_features
 
 __all__ = [
+    "CLOSE_MARGIN",
     "DRIFT_GROUP",
     "EffectFit",
     "applicable_effects",
@@ -40,6 +51,7 @@ __all__ = [
     "gap_with",
     "overall_gap",
     "rank_effects",
+    "separate_close_calls",
 ]
 
 log = logging.getLogger(__name__)
@@ -53,6 +65,10 @@ _INV_PHI = (math.sqrt(5.0) - 1.0) / 2.0
 _N_REFINE = 3
 _OWN_SPREAD = True
 _MAX_WIDEN = 2.0
+CLOSE_MARGIN = 0.05
+"""Shrink margin within which another group's effect is a close call to the top one (``separate_close_calls``)."""
+_SEPARATED = 2.0  # a feature separates two effects when their twins' means are this many pooled spreads apart
+_REFINE_DECADES = 0.1  # half-width of the top effect's magnitude re-fit on every seed of the spread
 DRIFT_GROUP = "slow_drift"
 """Group of ``bias_drift`` and ``temperature`` on a recording without a temperature column."""
 _DRIFT_MEMBERS = ("bias_drift", "temperature")
@@ -171,6 +187,12 @@ def fit_effect(twin: Twin, base: Baseline, effect: Effect, *, seeds: tuple[int, 
     values = [evaluate(float(x)) for x in grid]
     j = int(np.argmin(values))
     step = float(grid[1] - grid[0])
+    log_top = math.log10(0.95 * effect.limit) if math.isfinite(effect.limit) else log_hi
+    while j == len(grid) - 1 and log_hi + 1e-9 < log_top:  # best at the top: the range is too narrow for this twin
+        log_hi = min(log_hi + step, log_top)
+        grid = np.append(grid, log_hi)
+        values.append(evaluate(log_hi))
+        j = int(np.argmin(values))
     a, b = float(grid[j]) - step, min(float(grid[j]) + step, log_hi)
     c, d = b - _INV_PHI * (b - a), a + _INV_PHI * (b - a)
     fc, fd = evaluate(c), evaluate(d)
@@ -225,4 +247,90 @@ def rank_effects(twin: Twin, base: Baseline, effects: list[Effect], *, seeds: tu
                 f.gap_before, f.gap_after, f.stages_after = before, gap, stages
                 f.shrink = max(0.0, 1.0 - gap / before)
                 f.n_seeds = len(refine_seeds)
-    return sorted(fits, key=lambda f: (-f.shrink, f.gap_after))
+    fits.sort(key=lambda f: (-f.shrink, f.gap_after))
+    if len(refine_seeds) > len(seeds):
+        fits = separate_close_calls(twin, fits, refine_seeds)
+    if len(refine_seeds) > len(seeds) and fits and fits[0].magnitude > 0 and fits[0].n_seeds == len(refine_seeds):
+        _refine_magnitude(twin, base, fits[0], refine_seeds)
+    return fits
+
+
+def separate_close_calls(twin: Twin, fits: list[EffectFit], seeds: tuple[int, ...], *,
+                         margin: float = CLOSE_MARGIN) -> list[EffectFit]:
+    """Order the top effect against a close call (another group, shrink within ``margin``) by the
+    features that separate the two.
+
+    Two effects that both remove most of the gap agree on most features (the size of the residual,
+    say), and on those the comparison is a coin toss between their random draws. The features where
+    their twins disagree — the means more than ``_SEPARATED`` pooled spreads apart (spread floored
+    by ``STAGE_FLOORS``), e.g. whether the residual follows the temperature column or only a trend
+    in time — decide: the effect whose twins the recording is closer to on them (sum of squared
+    z-scores) goes first. Without such features the order by shrink stands.
+    """
+    if len(fits) < 2:
+        return fits
+    top = fits[0]
+    rec = twin.features_rec.values
+    for i, other in enumerate(fits[1:], start=1):
+        if other.group == top.group or other.shrink < top.shrink - margin or min(other.magnitude, top.magnitude) <= 0:
+            continue
+        if other.n_seeds != len(seeds) or top.n_seeds != len(seeds):  # compared on the seeds both were refined on
+            continue
+        fa = [x for x in (twin.try_features({top.name: top.magnitude}, s) for s in seeds) if x is not None]
+        fb = [x for x in (twin.try_features({other.name: other.magnitude}, s) for s in seeds) if x is not None]
+        if len(fa) < 2 or len(fb) < 2:
+            continue
+        (ma, sa), (mb, sb) = mean_features(fa), mean_features(fb)
+        score_a = score_b = 0.0
+        n_sep = 0
+        for k in ma:
+            if k not in mb or k not in rec or ma[k].shape != rec[k].shape or mb[k].shape != rec[k].shape:
+                continue
+            floor = np.resize(np.asarray(STAGE_FLOORS[k]), rec[k].shape)
+            spread = np.maximum(np.sqrt(0.5 * (sa[k] ** 2 + sb[k] ** 2)), floor)
+            sep = np.abs(ma[k] - mb[k]) > _SEPARATED * spread
+            sep &= np.isfinite(ma[k]) & np.isfinite(mb[k]) & np.isfinite(rec[k])
+            if sep.any():
+                n_sep += int(sep.sum())
+                score_a += float(np.sum(((rec[k] - ma[k]) / spread)[sep] ** 2))
+                score_b += float(np.sum(((rec[k] - mb[k]) / spread)[sep] ** 2))
+        if n_sep and score_b < score_a:
+            log.debug("close call: %s before %s on %d separating features (%.3g < %.3g)",
+                      other.name, top.name, n_sep, score_b, score_a)
+            return [other, *fits[:i], *fits[i + 1:]]
+    return fits
+
+
+def _refine_magnitude(twin: Twin, base: Baseline, f: EffectFit, seeds: tuple[int, ...]) -> None:
+    """Re-fit the magnitude of ``f`` on ``seeds`` (more twins than the search used) by a parabola in
+    ``log m`` through the gaps at ``m`` and ``m 10^(+-_REFINE_DECADES)`` (on the baseline's spread, as the
+    search); ``f`` takes the new magnitude when it lowers that gap.
+
+    An effect with a large random part (the random walk of ``bias_drift``) gives twins whose size
+    varies by tens of percent from draw to draw, and the few search seeds are the same for every
+    recording: their mean draw, not the recording, would otherwise set the magnitude.
+    """
+    x0 = math.log10(f.magnitude)
+    effect = EFFECTS[f.name]
+    top = 0.95 * effect.limit if math.isfinite(effect.limit) else float(effect.magnitude_range[1])
+    x_top = max(math.log10(top), x0)  # the search's domain (a limit-less effect keeps its range)
+    d = _REFINE_DECADES
+    xs = (x0 - d, x0, x0 + d) if x0 + d <= x_top else (x0 - 2 * d, x0 - d, x0)
+    ys = [gap_with(twin, base, f.name, 10.0**x, seeds)[0] for x in xs]
+    if not all(math.isfinite(y) for y in ys):
+        return
+    y0 = ys[xs.index(x0)]
+    curv = ys[0] - 2.0 * ys[1] + ys[2]  # the xs are evenly spaced
+    if curv <= 0:  # not convex: step to the better end
+        x = xs[0] if ys[0] < ys[2] else xs[2]
+    else:
+        x = xs[1] + 0.5 * d * (ys[0] - ys[2]) / curv
+    x = min(max(x, x0 - 2 * d), x0 + 2 * d, x_top)
+    if abs(x - x0) < 1e-3:
+        return
+    if not gap_with(twin, base, f.name, 10.0**x, seeds)[0] < y0:
+        return
+    gap, stages = gap_with(twin, base, f.name, 10.0**x, seeds, own_spread=_OWN_SPREAD)  # as the ranking measured it
+    if math.isfinite(gap):
+        f.magnitude, f.gap_after, f.stages_after = 10.0**x, gap, stages
+        f.shrink = max(0.0, 1.0 - gap / f.gap_before) if f.gap_before > 0 else 0.0

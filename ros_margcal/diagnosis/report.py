@@ -149,10 +149,11 @@ def summary(diag: Diagnosis) -> str:
                      "radius): no single calibration fits the recording; the twin is the fit of the side with more motion")
     ds = diag.downstream
     if ds.get("available") and "predicted_control" in ds:
-        lines.append(f"validator on a 300-sample set: measured error {ds['measured']:.3g}, predicted {ds['predicted_before']:.3g}"
-                     f" (log error {ds['log_error_before']:.2f}); retrained with {ds['effect']}: {ds['predicted_after']:.3g}"
-                     f" ({ds['log_error_after']:.2f}); retrained without it: {ds['predicted_control']:.3g}"
-                     f" ({ds['log_error_control']:.2f})")
+        lines.append(f"validator on a {ds['n_points']}-sample set: measured error {ds['measured']:.3g}, "
+                     f"predicted {ds['predicted_before']:.3g} (log error {ds['log_error_before']:.2f}); "
+                     f"retrained on {ds['n_sets']} sets with {ds['effect']}: {ds['predicted_after']:.3g} "
+                     f"({ds['log_error_after']:.2f}); on {ds['n_sets']} sets without it: {ds['predicted_control']:.3g} "
+                     f"({ds['log_error_control']:.2f})")
     return "\n".join(lines)
 
 

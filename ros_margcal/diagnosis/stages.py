@@ -27,12 +27,13 @@ The stages, in the order a sample meets them:
     non-linearity at ``l = 4``, offsets left over at ``l = 1``.
 ``residual_time``
     the residual explained by ``cos(pi k tau) Y_lm(d)`` (``tau`` = time scaled to [0, 1]) beyond the
-    static ``Y_lm`` (nested least squares): for ``k = 1, 2`` first on the degree-1 harmonics (an
-    offset that moves: drift), then on degrees 0 and 2 (gains that move: a temperature coefficient),
-    then ``k = 3..5`` on ``l <= 2`` (the ripple of a warm-up); the lag-1 autocorrelation of what the
-    direction fit leaves (bursts); and, when the recording has a temperature column, the residual
-    explained by ``(T - mean T) Y_lm(d)`` beyond the static harmonics and beyond the static and slow
-    terms (the residual follows the temperature, not just any slow trend).
+    static ``Y_lm`` (l <= 2; nested least squares): for ``k = 1, 2`` first on the degree-1 harmonics
+    (an offset that moves: drift), then on degrees 0 and 2 (gains that move: a temperature
+    coefficient), then ``k = 3..5`` on ``l <= 2`` (the ripple of a warm-up); the lag-1
+    autocorrelation of what the direction fit leaves (bursts); one offset step against smooth drift;
+    and, when the recording has a temperature column, the share of the time variation
+    ``(T - mean T) Y_lm(d)`` explains and the share the time terms explain beyond it (the residual
+    follows the temperature, not just any slow trend).
 ``residual_tails``
     the 99.9th and 99th percentiles of ``|r|`` and the plain std against the MAD sigma, and the
     quantile skewness ``(q99 + q01 - 2 q50) / (q99 - q01)``.
@@ -199,10 +200,14 @@ def _time_features(r: Array, basis: Array, t: Array, temp: Array | None, r_dir: 
     2 — gains that move (a temperature coefficient changes gains as well as the offset) —, then the
     faster k = 3..5; the lag-1 autocorrelation of what the direction fit leaves (bursts); offset step
     against smooth drift (``_step_feature``); with a temperature column, what ``(T - mean T) Y_lm``
-    explains beyond the static harmonics and beyond the static and slow terms (a residual that
-    follows the temperature, not just a trend). All sizes but the first are taken relative to the
-    first (differences of log10 RMS): they describe the *shape* of the change in time, which does not
-    depend on how strong it is, so a twin whose effect is a little too weak or strong still matches them.
+    (l <= 2) explains beyond the static harmonics, and what all the time terms still explain beyond
+    the static harmonics and the temperature terms, both relative to what the time terms explain
+    beyond the static harmonics: a residual that follows the temperature leaves the time terms
+    (almost) nothing, a drift that merely trends with it (a random walk, a linear course against a
+    warm-up curve) leaves them its own course. The other sizes but the first are taken relative to
+    the first (differences of log10 RMS). All relative sizes describe the *shape* of the change in
+    time, which does not depend on how strong it is, so a twin whose effect is a little too weak or
+    strong still matches them.
     """
     span = float(t[-1] - t[0]) if t.size > 1 else 1.0
     tau = (t - t[0]) / (span if span > 0 else 1.0)
@@ -224,8 +229,9 @@ def _time_features(r: Array, basis: Array, t: Array, temp: Array | None, r_dir: 
     if temp is not None and np.ptp(temp) > 0:
         z = ((temp - temp.mean()) / temp.std())[:, None]
         ft = _explained(r, np.hstack([static, z * static]))
-        fts = _explained(r, np.hstack([slow, z * static]))
-        feats += [_rms_log(ft - f0) - off, _rms_log(fts - f1) - off]
+        ftf = _explained(r, np.hstack([full, z * static]))
+        varying = _rms_log(f2 - f0)  # the whole time variation the time terms find
+        feats += [_rms_log(ft - f0) - varying, _rms_log(ftf - ft) - varying]
     return np.array(feats)
 
 

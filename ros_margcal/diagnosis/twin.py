@@ -2,8 +2,9 @@
 
 From the recording's own fits (``fitting.fit`` on an evenly spaced subsample):
 
-- the *directions* come from the best fit (``sym``): ``d_i = W (v_i - b) / |W (v_i - b)|``, smoothed
-  along time (``smooth_directions``) so the twin does not inherit the recording's noise;
+- the *directions* come from the best fit (``sym``, or ``diag`` when ``sym`` does not converge, e.g. on a
+  heavily clipped recording): ``d_i = W (v_i - b) / |W (v_i - b)|``, smoothed along time
+  (``smooth_directions``) so the twin does not inherit the recording's noise;
 - the *twin's true sensor* is the baseline model, offset + gains (the ``diag`` fit);
 - the *noise* is white, at the recording's rest-noise level (``stages.rest_noise``, or a level the
   caller measured at rest, e.g. from a static recording of the same sensor).
@@ -140,7 +141,7 @@ class Twin:
         temp: its temperature (n,) or None.
         sub: indices of the fitting subsample.
         truth: the twin's true sensor (baseline model: the ``diag`` fit of the recording).
-        best: the recording's best (``sym``) fit, which gives the directions.
+        best: the recording's best (``sym``, else ``diag``) fit, which gives the directions.
         dirs: (n, 3) unit directions.
         noise: white noise std, fraction of the field radius.
         sensor: "mag" or "accel".
@@ -323,8 +324,15 @@ def build_twin(
     sub = subsample(n, n_fit)
     change: OffsetChange | None = None
     try:
-        best = fit(pts[sub], model="sym", method="lm", norm=norm, max_iter=_MAX_ITER)
         truth = fit(pts[sub], model="diag", method="lm", norm=norm, sensor=sensor, max_iter=_MAX_ITER)
+        try:
+            best = fit(pts[sub], model="sym", method="lm", norm=norm, max_iter=_MAX_ITER)
+        except MargCalError as exc_sym:
+            if locate_offset_change(times[sub], pts[sub]) is not None:
+                raise
+            # no offset step (e.g. a heavily clipped recording): the baseline fit gives the directions
+            log.info("the sym fit does not converge (%s): directions from the diag fit", exc_sym)
+            best = truth
         h = best.apply(pts)
     except MargCalError as exc:
         change = locate_offset_change(times[sub], pts[sub])
