@@ -238,8 +238,9 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "rows.jsonl").unlink(missing_ok=True)
-    jobs = _select(_jobs(args.quick, args.seed), args.effects, args.sensor, args.limit)
-    subset = len(jobs) < len(_jobs(args.quick, args.seed))
+    design = _jobs(args.quick, args.seed)
+    jobs = _select(design, args.effects, args.sensor, args.limit)
+    subset = len(jobs) < len(design)
     t0 = time.monotonic()
     rows: list[dict[str, Any]] = []
     with multiprocessing.get_context("fork").Pool(max(1, args.jobs)) as pool:
@@ -277,14 +278,17 @@ def main(argv: list[str] | None = None) -> int:
           f"({len(jobs)} recordings of {jobs[0][5]:.0f} s at 50 Hz)")
     real = []
     if args.no_real:
-        pass
+        print("\nreal recordings: skipped (--no-real)")
     elif args.real_dir.is_dir():
         print(f"\nreal recordings ({args.real_dir}): effect fitted on the first half, gap on the withheld half")
         real = _real(args.real_dir, args.out, args.quick)
     else:
         print(f"\nreal recordings: {args.real_dir} absent, skipped")
     secs = math.nan if args.no_speed else _speed()
-    print(f"\nspeed: one diagnosis of a 5-minute 100 Hz recording (30000 samples) took {secs:.1f} s (target < 60 s)")
+    if args.no_speed:
+        print("\nspeed: skipped (--no-speed)")
+    else:
+        print(f"\nspeed: one diagnosis of a 5-minute 100 Hz recording (30000 samples) took {secs:.1f} s (target < 60 s)")
     (args.out / "results.json").write_text(json.dumps({"rows": rows, "top1": top1, "top1_strict": strict_rate / 100,
                                                       "median_shrink": med_shrink,
                                                       "none_rate": none_rate, "real": real, "speed_s": secs}, indent=1))

@@ -248,10 +248,10 @@ def rank_effects(twin: Twin, base: Baseline, effects: list[Effect], *, seeds: tu
                 f.shrink = max(0.0, 1.0 - gap / before)
                 f.n_seeds = len(refine_seeds)
     fits.sort(key=lambda f: (-f.shrink, f.gap_after))
-    if len(refine_seeds) > len(seeds):
+    if len(refine_seeds) > len(seeds):  # decided on more twins than the search used
         fits = separate_close_calls(twin, fits, refine_seeds)
-    if len(refine_seeds) > len(seeds) and fits and fits[0].magnitude > 0 and fits[0].n_seeds == len(refine_seeds):
-        _refine_magnitude(twin, base, fits[0], refine_seeds)
+        if fits and fits[0].magnitude > 0 and fits[0].n_seeds == len(refine_seeds):
+            _refine_magnitude(twin, base, fits[0], refine_seeds)
     return fits
 
 

@@ -56,7 +56,7 @@ from scipy.special import sph_harm_y
 from ..calibration import Calibration
 from ..errors import MargCalError
 from ..fitting import fit
-from .downstream import validator_errors
+from .downstream import N_SET, validator_errors
 
 __all__ = [
     "STAGES",
@@ -93,7 +93,6 @@ _TRIM_STD = 0.8711  # std of a standard normal truncated at its two-sided 95 % q
 _L_MAX = 4
 _K_TIME = 5
 _N_STEPS = 81
-_N_VALIDATOR_SET = 300
 _TINY = 1e-12
 _MAX_ITER = 400  # LM iterations: strong effects make the ellipsoid fit converge slowly
 
@@ -343,7 +342,7 @@ def stage_features(
         values["residual_time"] = _time_features(r, basis, t[sub], tsub, basis @ coef)
     values["residual_tails"] = _tail_features(r - basis @ coef)
     if validator is not None and sym is not None:
-        pick = np.linspace(0, len(sub) - 1, min(_N_VALIDATOR_SET, len(sub))).astype(np.intp)
+        pick = np.linspace(0, len(sub) - 1, min(N_SET, len(sub))).astype(np.intp)
         try:
             pred, meas = validator_errors(pts[pick], sym, validator)
             values["validator"] = np.array([_log10(meas / max(pred, _TINY))])

@@ -323,19 +323,22 @@ def build_twin(
         raise InputError(msg)
     sub = subsample(n, n_fit)
     change: OffsetChange | None = None
+    searched = False  # whether locate_offset_change has run (it is searched once)
     try:
         truth = fit(pts[sub], model="diag", method="lm", norm=norm, sensor=sensor, max_iter=_MAX_ITER)
         try:
             best = fit(pts[sub], model="sym", method="lm", norm=norm, max_iter=_MAX_ITER)
         except MargCalError as exc_sym:
-            if locate_offset_change(times[sub], pts[sub]) is not None:
+            change, searched = locate_offset_change(times[sub], pts[sub]), True
+            if change is not None:
                 raise
             # no offset step (e.g. a heavily clipped recording): the baseline fit gives the directions
             log.info("the sym fit does not converge (%s): directions from the diag fit", exc_sym)
             best = truth
         h = best.apply(pts)
     except MargCalError as exc:
-        change = locate_offset_change(times[sub], pts[sub])
+        if not searched:
+            change = locate_offset_change(times[sub], pts[sub])
         if change is None:
             msg = (f"the recording cannot be fitted ({exc}); a diagnosis needs a recording that turns the sensor "
                    "through many directions (a static recording only gives rest noise and quantisation)")
