@@ -62,6 +62,7 @@ from collections.abc import Callable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.linalg.blas import idamax
 
 from .calibration import MODELS, Calibration
 from .errors import ConfigError, ConvergenceError, DegenerateDataError, as_points
@@ -365,7 +366,7 @@ def fit(
             jw = jt if robust is None else jt * np.sqrt(robust)
             sigma2 = rr / (prep.n_points - theta.size) if robust is None else mad_sigma(r) ** 2
             cov = gn_covariance(gram(jw), sigma2, raw_scale(prep.sc, theta.size))
-        params, max_abs = theta.tolist(), float(np.abs(r).max())
+        params, max_abs = theta.tolist(), abs(float(r[idamax(r)]))  # BLAS: index of the largest |r_i|
     _log.debug("fit %s/%s: n=%d iterations=%d", method, model, prep.n_points, iterations)  # stats: cal.stats
     return finish(
         prep, params, rr, max_abs, cov, model=model, method=method, n_int=n_int, scale_free=scale_free,

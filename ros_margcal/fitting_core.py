@@ -13,7 +13,8 @@ views needs neither (N = 1000, P = 6: 2.5 us against 9.6 us for ``syrk``; N = 10
 One exception, ``X X^T`` in ``fitting_linear.lin_auto`` (Eq. 17), stays numpy's ``syrk``: lm starts from
 that solution, and gemm's different rounding would move lm's result within its stopping tolerance.
 The per-call overhead matters at N = 100 (a fit takes tens of microseconds), so the small results
-(``finish``, the closed-form 3x3 solves) are computed on Python floats, not numpy scalars.
+(the mean in ``prepare``, ``finish``, the closed-form 3x3 solves) are computed on Python floats, not numpy
+scalars, and the largest residual of a fit is BLAS ``idamax`` (one call, not numpy's abs and max).
 """
 
 from __future__ import annotations
@@ -177,18 +178,20 @@ def prepare(points: ArrayLike, n_params: int) -> Prepared:
         v = as_points(points, "points")  # the careful path: raises InputError with the details
     n_pts = v.shape[0]
     z: Array = np.array(v.T, order="C")  # (3, N): contiguous rows make every pass cheap
-    m = np.add.reduce(z, axis=1)
-    m /= n_pts
-    mean = m.tolist()
-    if fast and not math.isfinite(mean[0] + mean[1] + mean[2]):  # a NaN or Inf makes its row sum non-finite
+    s0, s1, s2 = np.add.reduce(z, axis=1).tolist()
+    mean = [s0 / n_pts, s1 / n_pts, s2 / n_pts]  # on Python floats: the same IEEE division, less overhead
+    if fast and not math.isfinite(s0 + s1 + s2):  # a NaN or Inf makes its row sum non-finite
         as_points(points, "points")  # the careful path: raises InputError with the details
+    m = np.array(mean)
     z -= m[:, None]  # centred: the fits are translation invariant
     s = gram(z).tolist()  # z z^T
     sc2 = (s[0][0] + s[1][1] + s[2][2]) / n_pts
     sc = math.sqrt(sc2)
-    check_geometry(n_pts, s, max(*map(abs, mean), sc, 1e-300), n_params)
+    check_geometry(n_pts, s, max(abs(mean[0]), abs(mean[1]), abs(mean[2]), sc, 1e-300), n_params)
     z *= 1.0 / sc  # unit RMS radius: well-conditioned normal equations (Gietzelt Eqs. 11, 17)
-    return Prepared(z, m, sc, [[row[0] / sc2, row[1] / sc2, row[2] / sc2] for row in s])
+    (s00, s01, s02), (s10, s11, s12), (s20, s21, s22) = s
+    scatter = [[s00 / sc2, s01 / sc2, s02 / sc2], [s10 / sc2, s11 / sc2, s12 / sc2], [s20 / sc2, s21 / sc2, s22 / sc2]]
+    return Prepared(z, m, sc, scatter)
 
 
 def check_geometry(n: int, scatter: Array | list[list[float]], scale: float, n_params: int) -> None:

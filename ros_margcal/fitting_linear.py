@@ -37,6 +37,7 @@ import math
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.linalg.blas import idamax
 
 from .errors import ConvergenceError, DegenerateDataError
 from .fitting_core import check_singular, gn_covariance, gram, solve_spd3
@@ -83,11 +84,12 @@ def lin_auto(z: Array, scatter: list[list[float]]) -> tuple[Array, list[float], 
     """
     n_pts = z.shape[1]
     rows = np.empty((6, n_pts))
+    d, xyz = rows[:3], rows[3:]
     s = scatter
-    o, _ = _sphere_centre(z, s, rows[3:])
+    o, _ = _sphere_centre(z, s, xyz)
     oa = np.array(o)
-    np.subtract(z, oa[:, None], out=rows[:3])
-    xyz = np.multiply(rows[:3], rows[:3], out=rows[3:])  # X_i, Y_i, Z_i, Eq. 14a-c
+    np.subtract(z, oa[:, None], out=d)
+    np.multiply(d, d, out=xyz)  # X_i, Y_i, Z_i, Eq. 14a-c
     # right-hand side of Eq. 17: sum_i X_i = sum_i (z_ix - o_x)^2 = scatter_xx + N o_x^2 (centred z)
     rhs = [s[0][0] + n_pts * o[0] * o[0], s[1][1] + n_pts * o[1] * o[1], s[2][2] + n_pts * o[2] * o[2]]
     t = solve_spd3(xyz @ xyz.T, rhs)  # Eq. 17 (numpy's syrk, not gram: lm starts here and keeps its rounding)
@@ -119,23 +121,20 @@ def lin_auto_fit(
     w = [n * math.sqrt(tx), n * math.sqrt(ty), n * math.sqrt(tz)]  # > 0: lin_auto checked t > 0
     check_singular(max(w) / max(min(w), 1e-300), "lin_auto")
     w2 = [n * n * tx, n * n * ty, n * n * tz]
-    rho = np.array(w2) @ rows[3:]
+    rho = np.dot(w2, rows[3:])  # (np.dot takes the list as it is: no array built first)
     np.sqrt(rho, out=rho)  # |W d_i| = sqrt(sum_j w_j^2 X_ij) for diagonal W
     theta = o.tolist() + w
-    lo, hi = float(rho.min()), float(rho.max())
     if n_pts <= 6:
         r = rho - n
-        return theta, float(r @ r), max(hi - n, n - lo), None
-    if lo < 1e-300:  # a point at the centre (d_i = 0): K_i = 0 below, not 0 / 0
-        np.maximum(rho, 1e-300, out=rho)
-        lo, hi = max(lo, 1e-300), max(hi, 1e-300)
+        return theta, float(r @ r), abs(float(r[idamax(r)])), None
+    np.maximum(rho, 1e-300, out=rho)  # a point at the centre (d_i = 0): K_i = 0 below, not 0 / 0
     rows /= rho  # K = [d; X] / rho
     r = np.subtract(rho, n, out=rho)  # the residuals, in place (rho is not needed any more)
-    rr = float(r @ r)
+    rr = float(r @ r)  # and max |r_i| below by BLAS idamax: one call, not a min and a max
     # J^T J = D (K K^T) D with D = diag(-w^2, w), so s^2 (J^T J)^-1 = s^2 D^-1 (K K^T)^-1 D^-1: D joins the
     # scaling to raw units (fitting_core.raw_scale) in gn_covariance, with no pass over the (6, N) rows
     scale = [-sc / w2[0], -sc / w2[1], -sc / w2[2], 1.0 / (sc * w[0]), 1.0 / (sc * w[1]), 1.0 / (sc * w[2])]
-    return theta, rr, max(hi - n, n - lo), gn_covariance(gram(rows), rr / (n_pts - 6), scale)
+    return theta, rr, abs(float(r[idamax(r)])), gn_covariance(gram(rows), rr / (n_pts - 6), scale)
 
 
 def algebraic(z: Array) -> tuple[Array, Array]:

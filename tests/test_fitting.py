@@ -154,6 +154,27 @@ def test_lin_auto_covariance_is_the_gauss_newton_one(n: int, rng: np.random.Gene
     assert not cal.covariance.flags.writeable and not cal.matrix.flags.writeable and not cal.offset.flags.writeable
 
 
+@pytest.mark.parametrize(("method", "model"), CASES)
+@pytest.mark.parametrize("n", [6, 9, 200])
+def test_stats_are_those_of_the_residuals(method: str, model: str, n: int, rng: np.random.Generator) -> None:
+    """``stats.max_abs`` and ``stats.rms`` are the largest and RMS norm residual of the result, with the norm given
+    or estimated (the fits take them from their own residual vectors, e.g. BLAS idamax for the largest)."""
+    truth = truth_for("sym" if model == "sym" else "diag")
+    raw = raw_points(truth, rng, n, noise=0.02)
+    for norm in (truth.norm, None):
+        try:
+            cal = fit(raw, model=model, method=method, norm=norm)
+        except MargCalError:  # too few points for this model, or not an ellipsoid from so few
+            assert n < 10
+            continue
+        e = np.abs(cal.norm_error(raw))
+        tol = {"rtol": 1e-9, "atol": 1e-12 * cal.norm}  # with N = P the fit is exact: residuals are rounding
+        assert cal.stats is not None
+        assert n <= 9 or e.max() > tol["atol"]
+        np.testing.assert_allclose(cal.stats.max_abs, e.max(), **tol)
+        np.testing.assert_allclose(cal.stats.rms, np.sqrt(np.mean(e * e)), **tol)
+
+
 def test_lin_auto_with_as_many_points_as_parameters_has_no_covariance(rng: np.random.Generator) -> None:
     """With N = P there is no residual variance: the fit still returns stats, but no covariance."""
     truth = truth_for("eye")
