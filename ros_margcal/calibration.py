@@ -212,6 +212,11 @@ class Calibration:
         """``|W (raw - b)| - norm`` per sample: the residual every fit minimises."""
         return np.linalg.norm(np.atleast_2d(self.apply(raw)), axis=1) - self.norm
 
+    @property
+    def raw_radius(self) -> float:
+        """Field radius in raw units: the radius ``norm / |det W|^(1/3)`` of the raw ellipsoid's equal-volume sphere."""
+        return float(self.norm / abs(float(np.linalg.det(self.matrix))) ** (1.0 / 3.0))
+
     def inverse_apply(self, calibrated: ArrayLike) -> Array:
         """Raw reading of a physical vector: ``W^-1 h + b`` (what the simulator needs)."""
         h = np.asarray(calibrated, dtype=np.float64)

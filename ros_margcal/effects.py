@@ -190,7 +190,7 @@ def sensor_model(
     m = effects.get
     norm = truth.norm
     w_inv = np.linalg.inv(truth.matrix)
-    r_raw = norm / abs(np.linalg.det(truth.matrix)) ** (1.0 / 3.0)  # field radius in raw units
+    r_raw = truth.raw_radius
     r_axis = norm * np.linalg.norm(w_inv, axis=1)  # largest offset-free deflection per axis
     g = h.copy()
     # 1. field side

@@ -226,7 +226,7 @@ class SensorCalibrator:
         if len(self._recent_v):
             r = np.abs(cal.norm_error(np.array(self._recent_v))) / cal.norm
             self._recent_r = deque(r.tolist(), maxlen=self.config.recent_samples)
-        self._buffer.set_center(cal.offset, _raw_radius(cal))
+        self._buffer.set_center(cal.offset, cal.raw_radius)
 
     # -- the sample path --------------------------------------------------------------------------
 
@@ -346,7 +346,8 @@ class SensorCalibrator:
         pts = np.array(self._recent_v)[first_bad:]
         tt = times[first_bad:]
         self._buffer.clear()
-        self._buffer.set_center(self._cal.offset if self._cal is not None else np.zeros(3), _raw_radius(self._cal))
+        cal = self._cal
+        self._buffer.set_center(np.zeros(3) if cal is None else cal.offset, 1.0 if cal is None else cal.raw_radius)
         for ti, p in zip(tt, pts, strict=True):
             self._buffer.push(float(ti), p)
         self._since_eval = len(self._buffer)
@@ -528,10 +529,3 @@ class SensorCalibrator:
             fits_accepted=self.fits_accepted, fits_rejected=self.fits_rejected,
             last_rejection=self._last_rejection, changes_detected=self.changes,
         )
-
-
-def _raw_radius(cal: Calibration | None) -> float:
-    """Radius of the raw-data ellipsoid's equal-volume sphere: ``norm / |det W|^(1/3)``."""
-    if cal is None:
-        return 1.0
-    return float(cal.norm / abs(np.linalg.det(cal.matrix)) ** (1.0 / 3.0))

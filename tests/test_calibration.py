@@ -217,6 +217,15 @@ def test_trusted_fit_stats_equal_the_checked_ones() -> None:
         fast.rms = 1.0  # type: ignore[misc]
 
 
+def test_raw_radius_is_the_equal_volume_radius_of_the_raw_ellipsoid() -> None:
+    """``raw_radius`` cubed is the product of the raw ellipsoid's semi-axes (``norm`` times the singular values of W^-1)."""
+    w = np.array([[2.0, 0.3, 0.0], [0.3, 1.0, 0.1], [0.0, 0.1, 0.5]])
+    cal = Calibration(np.array([5.0, -3.0, 1.0]), w, norm=48.0)
+    semi_axes = 48.0 * np.linalg.svd(np.linalg.inv(w), compute_uv=False)
+    assert cal.raw_radius**3 == pytest.approx(float(np.prod(semi_axes)), rel=1e-12)
+    assert Calibration(np.zeros(3), 0.5 * np.eye(3), norm=2.0).raw_radius == pytest.approx(4.0, rel=1e-15)
+
+
 def test_arrays_are_read_only(true_cal: Calibration) -> None:
     """A calibration cannot be corrupted in place through its arrays."""
     with pytest.raises(ValueError, match="read-only"):

@@ -29,8 +29,7 @@ def _stream(effects: dict[str, float] | None, seed: int = 3, duration: float = 3
     rng = np.random.default_rng([seed, 7])
     truth = random_sensor(rng, "mag", model="diag")
     rec = magnetometer_stream(truth, duration, 50.0, rng, noise=NOISE, effects=effects)
-    r_raw = truth.norm / abs(float(np.linalg.det(truth.matrix))) ** (1 / 3)
-    return rec, NOISE * r_raw
+    return rec, NOISE * truth.raw_radius
 
 
 def test_rest_noise_recovers_white_noise_under_motion() -> None:
@@ -243,7 +242,7 @@ def test_offset_change_is_located_only_where_the_offset_steps(effects: dict[str,
     assert (change is not None) == found
     if change is None:
         return
-    r_raw = rec.truth.norm / abs(float(np.linalg.det(rec.truth.matrix))) ** (1 / 3)
+    r_raw = rec.truth.raw_radius
     shift = rec.raw - rec.truth.inverse_apply(rec.true_field)  # the offset change plus noise
     before, after = shift[rec.t < change.t - 2.0].mean(axis=0), shift[rec.t > change.t + 2.0].mean(axis=0)
     assert np.linalg.norm(before) < 0.03 * r_raw

@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import multiprocessing
 import os
 import sys
@@ -60,8 +59,7 @@ def _make(sensor: str, effect: str | None, magnitude: float, coverage: str, seed
         rec = tumbling(truth, duration, 50.0, rng, still_fraction=0.6 if coverage == "slow" else 0.3, noise=noise,
                        effects=eff)
         rec = rec.slice(rec.still)  # what the inactivity gate passes on: the still samples (motion_leak leaks in)
-    r_raw = truth.norm / abs(float(np.linalg.det(truth.matrix))) ** (1.0 / 3.0)
-    return rec, noise * r_raw
+    return rec, noise * truth.raw_radius
 
 
 def _case(job: tuple[str, str | None, float, str, int, float]) -> dict[str, Any]:
@@ -284,7 +282,7 @@ def main(argv: list[str] | None = None) -> int:
         real = _real(args.real_dir, args.out, args.quick)
     else:
         print(f"\nreal recordings: {args.real_dir} absent, skipped")
-    secs = math.nan if args.no_speed else _speed()
+    secs = None if args.no_speed else _speed()  # None: JSON null, not NaN
     if args.no_speed:
         print("\nspeed: skipped (--no-speed)")
     else:

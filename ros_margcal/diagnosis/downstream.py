@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 
 from ..calibration import Calibration
 from ..corpus import build_corpus, recording_error
-from ..coverage import compute_indicators
+from ..coverage import Indicators, compute_indicators
 from ..errors import MargCalError
 from ..fitting import fit
 
@@ -53,11 +53,19 @@ def validator_errors(points: Array, reference: Calibration, validator: object) -
     Returns:
         (predicted, measured), both as fractions of the norm.
     """
-    sph = fit(points, model="eye", method="sphere", norm=None)
-    ind = compute_indicators(points, sph.offset, float(sph.norm))
-    predicted = float(validator.predict_indicators(ind))  # type: ignore[attr-defined]
+    predicted = _predict(validator, _set_indicators(points))
     cal = fit(points, model="sym", method="lm", norm=None)
     return predicted, recording_error(cal, reference)
+
+
+def _set_indicators(points: Array) -> Indicators:
+    """Coverage indicators of a calibration set about its linear sphere fit (the node's frame before a calibration)."""
+    sph = fit(points, model="eye", method="sphere", norm=None)
+    return compute_indicators(points, sph.offset, float(sph.norm))
+
+
+def _predict(validator: object, ind: Indicators) -> float:
+    return float(validator.predict_indicators(ind))  # type: ignore[attr-defined]
 
 
 def retrain_validator(validator: object, n_sets: int, seed: int, effects: dict[str, float] | None, *,
@@ -135,8 +143,9 @@ def compare_validators(points: Array, reference: Calibration, validator: object,
         models["with_effect"] = retrain_validator(validator, n_sets, seed, effects, **opts)
         models["control"] = retrain_validator(validator, n_sets, seed, None, **opts)
     table: dict[str, dict[str, Any]] = {}
+    ind = _set_indicators(points) if effects else None  # the retrained models predict from the same indicators
     for name, (model, summary) in models.items():
-        pred = predicted if model is validator else validator_errors(points, reference, model)[0]
+        pred = predicted if ind is None or model is validator else _predict(model, ind)
         table[name] = {"predicted": pred, "measured": measured, "log_error": _log_error(measured, pred),
                        "ratio": measured / max(pred, _TINY), **summary}
     return {"measured": measured, "n_points": len(points), "span_s": float(span_s), "recording": recording,

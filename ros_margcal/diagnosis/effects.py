@@ -37,7 +37,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..simulation import EFFECTS, Effect
-from .stages import STAGE_FLOORS, stage_gaps
+from .stages import stage_floor, stage_gaps
 from .twin import Baseline, Twin, mean_features
 
 __all__ = [
@@ -63,7 +63,6 @@ _GOLDEN_STEPS = 6
 _LOW_DECADES = 3.0  # the grid starts this many decades below the top of the magnitude range
 _INV_PHI = (math.sqrt(5.0) - 1.0) / 2.0
 _N_REFINE = 3
-_OWN_SPREAD = True
 _MAX_WIDEN = 2.0
 CLOSE_MARGIN = 0.05
 """Shrink margin within which another group's effect is a close call to the top one (``separate_close_calls``)."""
@@ -156,11 +155,11 @@ def gap_with(twin: Twin, base: Baseline, effect: str, m: float, seeds: tuple[int
     wide = {}
     for k, v in sd.items():
         if k in base.sd and base.sd[k].shape == v.shape:
-            ref = np.maximum(base.sd[k], np.resize(np.asarray(STAGE_FLOORS[k]), v.shape))
+            ref = np.maximum(base.sd[k], stage_floor(k, v.shape))
             wide[k] = np.clip(v, base.sd[k], _MAX_WIDEN * ref)  # a few seeds: do not trust a spread far wider
     stages = stage_gaps(twin.features_rec.values, mean, wide)
     for name in list(stages):
-        floor = np.resize(np.asarray(STAGE_FLOORS[name]), wide[name].shape)
+        floor = stage_floor(name, wide[name].shape)
         pen = 2.0 * np.log(np.maximum(wide[name], floor) / np.maximum(base.sd[name], floor))
         stages[name] = float(np.sqrt(stages[name] ** 2 + float(np.mean(pen))))
     return overall_gap(stages), stages
@@ -237,12 +236,12 @@ def rank_effects(twin: Twin, base: Baseline, effects: list[Effect], *, seeds: tu
             progress(i + 1, len(effects), e.name)
     fits.sort(key=lambda f: (-f.shrink, f.gap_after))
     if len(refine_seeds) > len(seeds):
+        before = overall_gap(stage_gaps(twin.features_rec.values,
+                                        mean_features([twin.features(None, s) for s in refine_seeds])[0], base.sd))
         for f in fits[:n_refine]:
             if f.magnitude <= 0 or f.gap_before <= 0:
                 continue
-            gap, stages = gap_with(twin, base, f.name, f.magnitude, refine_seeds, own_spread=_OWN_SPREAD)
-            before = overall_gap(stage_gaps(twin.features_rec.values,
-                                            mean_features([twin.features(None, s) for s in refine_seeds])[0], base.sd))
+            gap, stages = gap_with(twin, base, f.name, f.magnitude, refine_seeds, own_spread=True)
             if math.isfinite(gap) and before > 0:
                 f.gap_before, f.gap_after, f.stages_after = before, gap, stages
                 f.shrink = max(0.0, 1.0 - gap / before)
@@ -286,7 +285,7 @@ def separate_close_calls(twin: Twin, fits: list[EffectFit], seeds: tuple[int, ..
         for k in ma:
             if k not in mb or k not in rec or ma[k].shape != rec[k].shape or mb[k].shape != rec[k].shape:
                 continue
-            floor = np.resize(np.asarray(STAGE_FLOORS[k]), rec[k].shape)
+            floor = stage_floor(k, rec[k].shape)
             spread = np.maximum(np.sqrt(0.5 * (sa[k] ** 2 + sb[k] ** 2)), floor)
             sep = np.abs(ma[k] - mb[k]) > _SEPARATED * spread
             sep &= np.isfinite(ma[k]) & np.isfinite(mb[k]) & np.isfinite(rec[k])
@@ -330,7 +329,7 @@ def _refine_magnitude(twin: Twin, base: Baseline, f: EffectFit, seeds: tuple[int
         return
     if not gap_with(twin, base, f.name, 10.0**x, seeds)[0] < y0:
         return
-    gap, stages = gap_with(twin, base, f.name, 10.0**x, seeds, own_spread=_OWN_SPREAD)  # as the ranking measured it
+    gap, stages = gap_with(twin, base, f.name, 10.0**x, seeds, own_spread=True)  # as the ranking measured it
     if math.isfinite(gap):
         f.magnitude, f.gap_after, f.stages_after = 10.0**x, gap, stages
         f.shrink = max(0.0, 1.0 - gap / f.gap_before) if f.gap_before > 0 else 0.0

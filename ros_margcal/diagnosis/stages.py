@@ -60,11 +60,13 @@ from .downstream import N_SET, validator_errors
 
 __all__ = [
     "STAGES",
+    "STAGE_FLOORS",
     "StageFeatures",
     "rest_noise",
     "sh_basis",
     "sh_power",
     "stage_features",
+    "stage_floor",
     "stage_gaps",
 ]
 
@@ -95,6 +97,11 @@ _K_TIME = 5
 _N_STEPS = 81
 _TINY = 1e-12
 _MAX_ITER = 400  # LM iterations: strong effects make the ellipsoid fit converge slowly
+
+
+def stage_floor(name: str, shape: tuple[int, ...]) -> Array:
+    """The spread floors of stage ``name`` (``STAGE_FLOORS``) as an array of a feature's ``shape``."""
+    return np.resize(np.asarray(STAGE_FLOORS[name], dtype=np.float64), shape)
 
 
 @dataclass
@@ -323,7 +330,7 @@ def stage_features(
         cal = fit(pts, model="diag", method="lin_auto", norm=norm)
     else:
         cal = fit(pts, model="diag", method="lm", norm=norm, max_iter=_MAX_ITER)
-    r_raw = cal.norm / abs(float(np.linalg.det(cal.matrix))) ** (1.0 / 3.0)
+    r_raw = cal.raw_radius
     h = cal.apply(pts)
     lengths = np.linalg.norm(h, axis=1)
     r = lengths / cal.norm - 1.0
@@ -374,7 +381,7 @@ def stage_gaps(
         a, m, s = rec[name], twin_mean[name], twin_sd[name]
         if a.shape != m.shape:
             continue
-        floor = np.resize(np.asarray(STAGE_FLOORS[name]), a.shape)
+        floor = stage_floor(name, a.shape)
         z = (a - m) / np.maximum(s, floor)
         z = np.where(np.isfinite(z), z, 0.0)
         out[name] = float(np.sqrt(np.mean(z**2)))

@@ -205,8 +205,7 @@ class Twin:
             msg = (f"the baseline twin cannot be fitted ({exc}); the recording's directions or noise level "
                    f"(rest noise {self.noise:.3g} of the field radius) do not make a usable twin")
             raise DegenerateDataError(msg) from exc
-        _, sd = mean_features(feats)
-        mean, _ = mean_features(feats)
+        mean, sd = mean_features(feats)
         return Baseline(seeds=seeds, features=feats, mean=mean, sd=sd)
 
 
@@ -371,11 +370,11 @@ def build_twin(
         msg = (f"the recording's stage features cannot be computed ({exc})"
                + ("" if change is None else f"; {_change_message(change, exc)}"))
         raise DegenerateDataError(msg) from exc
-    r_raw = truth.norm / abs(float(np.linalg.det(truth.matrix))) ** (1.0 / 3.0)
+    r_raw = truth.raw_radius
     if rest_noise_raw is None:
         if "rest_noise" in skipped:
             rms = best.stats.rms_relative if best.stats is not None else 0.0
-            noise = float(rms) * float(best.norm) / abs(float(np.linalg.det(best.matrix))) ** (1.0 / 3.0) / r_raw
+            noise = float(rms) * best.raw_radius / r_raw
         else:
             noise = rest_noise(pts) / r_raw
     else:
