@@ -26,7 +26,7 @@ setup(
     entry_points={
         "console_scripts": [
             "margcal = ros_margcal.cli:main",
-            "margcal_node = ros_margcal.node:main",
+            "margcal_node = ros_margcal.ros.node:main",
         ],
     },
 )

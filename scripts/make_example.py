@@ -22,9 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ros_margcal.calibration import save_calibrations
-from ros_margcal.io import write_bag
-from ros_margcal.simulation import HardIronJump, magnetometer_stream, random_sensor, tumbling, tumbling_motion
+from ros_margcal.model.calibration_file import save_calibrations
+from ros_margcal.recordings.bag import write_bag
+from ros_margcal.sim.simulation import HardIronJump, magnetometer_stream, random_sensor, tumbling, tumbling_motion
 
 SEED = 20261121
 DURATION_S = 360.0

@@ -17,9 +17,9 @@ import sys
 import numpy as np
 from scipy.stats import spearmanr
 
-from ros_margcal.corpus import FAILED_ERROR, Corpus
-from ros_margcal.roc import roc_auc
-from ros_margcal.validation import load_default_validator, load_validator
+from ros_margcal.training.corpus import FAILED_ERROR, Corpus
+from ros_margcal.validation.roc import roc_auc
+from ros_margcal.validation.shipped import load_default_validator, load_validator
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -29,9 +29,9 @@ import numpy as np
 
 from ros_margcal.diagnosis.downstream import N_SET, compare_validators, retrain_validator, validator_errors
 from ros_margcal.diagnosis.twin import subsample
-from ros_margcal.fitting import fit
-from ros_margcal.simulation import magnetometer_stream, random_sensor
-from ros_margcal.validation import load_default_validator
+from ros_margcal.model.fitting import fit
+from ros_margcal.sim.simulation import magnetometer_stream, random_sensor
+from ros_margcal.validation.shipped import load_default_validator
 
 DEFAULT_EFFECTS = "none=0,bias_drift=0.02,temperature=0.002,nonlinearity=0.02,disturbance=0.3,noise=0.005"
 VALIDATORS = ("original", "true", "2x", "control")

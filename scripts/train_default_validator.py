@@ -29,8 +29,9 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 import numpy as np  # noqa: E402
 
 from ros_margcal.cli.validator import DEFAULT_INPUTS, train_fuzzy  # noqa: E402
-from ros_margcal.corpus import build_corpus  # noqa: E402
-from ros_margcal.validation import DEFAULT_MAX_ERROR, roc_auc  # noqa: E402
+from ros_margcal.training.corpus import build_corpus  # noqa: E402
+from ros_margcal.validation.roc import roc_auc  # noqa: E402
+from ros_margcal.validation.threshold import DEFAULT_MAX_ERROR  # noqa: E402
 
 N_SETS = 4000
 SEED = 20131

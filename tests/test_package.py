@@ -14,7 +14,7 @@ def test_public_api_is_importable_without_rclpy() -> None:
     """Every name in __all__ resolves, and importing the package did not pull in rclpy."""
     for name in ros_margcal.__all__:
         assert getattr(ros_margcal, name) is not None, name
-    assert "rclpy" not in sys.modules or "ros_margcal.node" in sys.modules
+    assert "rclpy" not in sys.modules or "ros_margcal.ros.node" in sys.modules
 
 
 def test_cli_has_every_design_subcommand() -> None:

@@ -29,8 +29,15 @@ import time
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..coverage import DirectionBuffer, compute_indicators
-from ..gate import InactivityGate
+from ..coverage.buffer import DirectionBuffer
+from ..coverage.gate import InactivityGate
+from ..coverage.indicators import compute_indicators
+from ..sim.simulation import directions, random_sensor, tumbling, tumbling_motion
+
+__all__ = [
+    "CENTER", "RADIUS", "RATE_HZ", "bench_accepted", "bench_memory", "bench_offered", "fig7", "gate_on_tumbling",
+    "main"
+]
 
 Array = np.ndarray
 
@@ -168,7 +175,6 @@ def bench_memory(rng: np.random.Generator, checkpoints: list[int]) -> list[tuple
 
 def fig7(rng: np.random.Generator, n: int = 1000) -> tuple[object, object]:
     """Indicators of a well-distributed set and an axis-ellipses set of the same size (Olivares Fig. 7)."""
-    from ..simulation import directions
 
     c, r = np.array([512.0, 500.0, 520.0]), 260.0  # a 10-bit magnetometer like the paper's
     well = c + r * directions("uniform", n, rng) + rng.normal(scale=2.0, size=(n, 3))
@@ -178,7 +184,6 @@ def fig7(rng: np.random.Generator, n: int = 1000) -> tuple[object, object]:
 
 def gate_on_tumbling(rng: np.random.Generator, duration_s: float) -> dict[str, float]:
     """Precision/recall of still detection and norm error of emitted samples on simulated tumbling."""
-    from ..simulation import random_sensor, tumbling, tumbling_motion
 
     truth = random_sensor(rng, kind="accel")
     noise = 0.002

@@ -37,9 +37,17 @@ from typing import Any
 
 import numpy as np
 
+from ..diagnosis import diagnose, diagnose_holdout
+from ..diagnosis.ranking import effective_group
+from ..diagnosis.report import _plt, figure_png
+from ..model.errors import MargCalError
+from ..recordings.read import read_recording
+from ..sim.simulation import EFFECTS, magnetometer_stream, random_sensor, tumbling
+from ..validation.shipped import load_default_validator
+
 __all__ = ["main"]
 
-_REAL = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "real"
+_REAL = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "real"
 _REAL_FILES = ("sunsided_hmc5883l_full_sphere_mag.csv", "ck_lsm9ds1_full_sphere_mag.csv", "hamagure_lsm9ds1_full_sphere_mag.csv",
                "broad_02_undisturbed_slow_rotation_B_mag.csv", "broad_32_disturbed_attached_magnet_1cm_mag.csv",
                "sunsided_mpu6050_full_sphere_acc.csv", "ck_lsm9ds1_static_poses_acc.csv")
@@ -47,7 +55,6 @@ _NOISE = {"mag": 0.005, "accel": 0.002}
 
 
 def _make(sensor: str, effect: str | None, magnitude: float, coverage: str, seed: int, duration: float) -> tuple[Any, float]:
-    from ..simulation import magnetometer_stream, random_sensor, tumbling
 
     rng = np.random.default_rng([seed, 7])
     truth = random_sensor(rng, sensor, model="diag")
@@ -63,8 +70,6 @@ def _make(sensor: str, effect: str | None, magnitude: float, coverage: str, seed
 
 
 def _case(job: tuple[str, str | None, float, str, int, float]) -> dict[str, Any]:
-    from ..diagnosis import diagnose
-    from ..errors import MargCalError
 
     sensor, effect, magnitude, coverage, seed, duration = job
     rec, rest = _make(sensor, effect, magnitude, coverage, seed, duration)
@@ -86,8 +91,6 @@ def _case(job: tuple[str, str | None, float, str, int, float]) -> dict[str, Any]
 def _label(sensor: str, effect: str, has_temp: bool = True) -> str:
     """The cause a correct diagnosis names: the effect, or its group when the data cannot tell the
     group's members apart (``diagnosis.effects.effective_group``), ``none`` for unobservable effects."""
-    from ..diagnosis.effects import effective_group
-    from ..simulation import EFFECTS
 
     if effect == "none" or not EFFECTS[effect].observable:
         return "none"
@@ -99,7 +102,6 @@ def _label(sensor: str, effect: str, has_temp: bool = True) -> str:
 
 def _strict_hit(row: dict[str, Any]) -> bool:
     """The top-ranked effect is the withheld one (or in its registry group), groups of the data not merged."""
-    from ..simulation import EFFECTS
 
     label = _label(row["sensor"], row["effect"], True)
     if label == "none" or row["cause"] in ("none", "unexplained", "error"):
@@ -109,7 +111,6 @@ def _strict_hit(row: dict[str, Any]) -> bool:
 
 def _jobs(quick: bool, seed: int = 0) -> list[tuple[str, str | None, float, str, int, float]]:
     """The benchmark's recordings; ``seed`` shifts every recording's seed (another draw of the same design)."""
-    from ..simulation import EFFECTS
 
     factors = (2.0,) if quick else (1.0, 2.0, 4.0)
     covers = {"mag": ("smooth",) if quick else ("smooth", "tumble"), "accel": ("slow",) if quick else ("slow", "busy")}
@@ -130,7 +131,6 @@ def _select(jobs: list[tuple[str, str | None, float, str, int, float]], effects:
             ) -> list[tuple[str, str | None, float, str, int, float]]:
     """The jobs of the named effects (comma-separated, ``none`` for the baseline-only recordings; empty: all)
     and sensor (empty: both), at most ``limit`` of them (0: all), spread evenly over the selection."""
-    from ..simulation import EFFECTS
 
     names = [x.strip() for x in effects.split(",") if x.strip()]
     unknown = sorted(set(names) - set(EFFECTS) - {"none"})
@@ -153,7 +153,6 @@ def _confusion(rows: list[dict[str, Any]], out: Path) -> tuple[str, Path]:
     w = max(len(s) for s in labels)
     lines = [" " * (w + 2) + " ".join(f"{s[:6]:>6s}" for s in labels)]
     lines += [f"{a:>{w}s}  " + " ".join(f"{v:6d}" for v in mat[i]) for i, a in enumerate(labels)]
-    from ..diagnosis.report import _plt, figure_png
 
     plt = _plt()
     fig, ax = plt.subplots(figsize=(8, 7))
@@ -172,9 +171,6 @@ def _confusion(rows: list[dict[str, Any]], out: Path) -> tuple[str, Path]:
 
 
 def _real(real_dir: Path, out: Path, quick: bool) -> list[dict[str, Any]]:
-    from ..diagnosis import diagnose_holdout
-    from ..diagnosis.report import _plt, figure_png
-    from ..io import read_recording
 
     files = [real_dir / f for f in _REAL_FILES if (real_dir / f).is_file()][: 2 if quick else None]
     rows = []
@@ -208,9 +204,6 @@ def _real(real_dir: Path, out: Path, quick: bool) -> list[dict[str, Any]]:
 
 
 def _speed() -> float:
-    from ..diagnosis import diagnose
-    from ..simulation import magnetometer_stream, random_sensor
-    from ..validation import load_default_validator
 
     rng = np.random.default_rng(5)
     truth = random_sensor(rng, "mag", model="diag")

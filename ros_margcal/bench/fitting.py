@@ -26,8 +26,13 @@ from collections.abc import Callable
 import numpy as np
 from scipy.optimize import least_squares
 
-from ..calibration import Calibration
-from ..fitting import fit
+from ..model.calibration import Calibration
+from ..model.fitting import fit
+
+__all__ = [
+    "DIAG_TRUTH_W", "METHOD_ROWS", "NAMES", "OFF", "PAPER_TABLE4", "SYM_TRUTH_W", "crb", "crb_study", "main",
+    "params_of", "speed", "table4", "unit_vectors"
+]
 
 Array = np.ndarray
 

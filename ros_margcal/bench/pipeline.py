@@ -25,9 +25,11 @@ from typing import Any
 
 import numpy as np
 
-from .. import simulation as sim
-from ..messages import calibrate_mag, imu_to_numpy, mag_to_numpy
-from ..pipeline import SensorCalibrator
+from ..recordings.bag import iter_bag_messages, write_bag
+from ..ros.messages import calibrate_mag, imu_to_numpy, mag_to_numpy
+from ..sim import simulation as sim
+from ..stream.calibrator import SensorCalibrator
+from ..stream.replay import replay
 
 __all__ = ["main"]
 
@@ -35,7 +37,7 @@ TARGET_US = 20.0
 
 
 def _typestore_classes() -> dict[str, Any]:
-    from rosbags.typesys import Stores, get_typestore
+    from rosbags.typesys import Stores, get_typestore  # optional dependency: bags only (a ROS install may lack rosbags)
 
     t = get_typestore(Stores.ROS2_JAZZY).types
     return {k: t[v] for k, v in {
@@ -106,8 +108,6 @@ def _throughput(rec: sim.Recording, sensor: str) -> float:
 
 def _bag_throughput(mag: sim.Recording, imu: sim.Recording) -> tuple[float, float]:
     """Samples/s of the full replay from an .mcap, and of reading the bag alone (the baseline)."""
-    from ..cli.replay import replay
-    from ..io import iter_bag_messages, write_bag
 
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "bench.mcap"

@@ -12,7 +12,8 @@ import logging
 import sys
 from collections.abc import Sequence
 
-from ..errors import MargCalError
+from .. import __version__
+from ..model.errors import MargCalError
 
 __all__ = ["main"]
 
@@ -27,7 +28,6 @@ def _run_bench(args: argparse.Namespace) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser with every subcommand registered."""
-    from .. import __version__
 
     parser = argparse.ArgumentParser(
         prog="margcal",

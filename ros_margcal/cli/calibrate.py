@@ -18,9 +18,12 @@ from typing import Any
 
 import numpy as np
 
-from ..calibration import MODELS, Calibration, save_calibrations
-from ..errors import RecordingError
-from ..fitting import LOSSES, METHODS, SUPPORTED, fit
+from ..coverage.gate import InactivityGate
+from ..model.calibration import MODELS, Calibration
+from ..model.calibration_file import save_calibrations
+from ..model.errors import RecordingError
+from ..model.fitting import LOSSES, METHODS, SUPPORTED, fit
+from ..recordings.read import read_recording
 
 __all__ = ["register", "run"]
 
@@ -73,7 +76,6 @@ def register(subparsers: Any) -> None:
 
 def _still_samples(rec: Any) -> np.ndarray:
     """Averaged still samples of an accelerometer stream through the inactivity gate (Gietzelt Sec. 2.4)."""
-    from ..gate import InactivityGate
 
     gate = InactivityGate()
     out = []
@@ -123,7 +125,6 @@ def _print(cal: Calibration, source: str, n_read: int) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Read the recording, fit, print, write YAML/JSON; returns the exit code."""
-    from ..io import read_recording  # lazy: reading bags needs rosbags
 
     rec = read_recording(args.input, sensor=args.sensor, topic=args.topic)
     sensor = args.sensor or rec.sensor or ""

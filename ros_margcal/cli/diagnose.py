@@ -16,7 +16,11 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from ..errors import ConfigError, MargCalError
+from ..bench.diagnosis import main
+from ..diagnosis import diagnose, diagnose_holdout, rest_noise, summary, validator_downstream, write_report
+from ..model.errors import ConfigError, MargCalError
+from ..recordings.read import read_recording
+from ..validation.shipped import load_default_validator
 
 __all__ = ["register", "run", "run_benchmark"]
 
@@ -57,8 +61,6 @@ def _progress(done: int, total: int, name: str) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run one diagnosis and write its report."""
-    from ..diagnosis import diagnose, rest_noise, summary, validator_downstream, write_report
-    from ..io import read_recording
 
     if args.n_fit < 100:
         msg = f"--n-fit must be at least 100, got {args.n_fit}"
@@ -71,7 +73,6 @@ def run(args: argparse.Namespace) -> int:
         print(f"rest noise from {args.rest_recording}: {noise:.4g} raw units", file=sys.stderr)
     validator = None
     if not args.no_validator:
-        from ..validation import load_default_validator
 
         try:
             validator = load_default_validator()
@@ -99,7 +100,6 @@ def run(args: argparse.Namespace) -> int:
 def _holdout(rec: Any, split: float, options: dict[str, Any]) -> dict[str, Any]:
     """The withheld-part check; a part that cannot be diagnosed is reported, not allowed to lose the
     diagnosis of the whole recording (BROAD 36: the first half alone does not fit)."""
-    from ..diagnosis import diagnose_holdout
 
     try:
         held = diagnose_holdout(rec, split=split, **options)
@@ -112,6 +112,5 @@ def _holdout(rec: Any, split: float, options: dict[str, Any]) -> dict[str, Any]:
 
 def run_benchmark(args: argparse.Namespace) -> int:
     """Dispatch to ``ros_margcal.bench.diagnosis.main``."""
-    from ..bench.diagnosis import main
 
     return int(main(list(args.bench_args)))

@@ -18,25 +18,21 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import sys
-from collections.abc import Iterator
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..calibration import Calibration, load_calibrations
-from ..errors import ConfigError
-from ..pipeline import Event, EventKind, SensorCalibrator, Status
-from ..pipeline_config import PipelineConfig
-from ..validation import load_validator
+from ..model.calibration import Calibration
+from ..model.calibration_file import load_calibrations
+from ..model.errors import ConfigError
+from ..stream.calibrator import SensorCalibrator
+from ..stream.replay import replay
+from ..stream.status import Status
+from ..validation.shipped import load_validator
 
 __all__ = ["example_paths", "register", "replay", "run"]
-
-_SENSOR_OF_KIND = {"imu": "accel", "mag": "mag"}
-_UNIT_OF_SENSOR = {"accel": "m/s^2", "mag": "T"}
-
 
 def example_paths() -> tuple[Path, Path]:
     """The shipped example recording and its truth file."""
@@ -63,89 +59,6 @@ def register(subparsers: Any) -> None:
     p.set_defaults(func=run)
 
 
-def _samples(path: Path, sensor: str | None, unit: str | None) -> tuple[Iterator[tuple[float, str, Any, Any]], dict[str, str]]:
-    """(t, sensor, xyz, gyro) in recording order, and the raw unit of each sensor."""
-    from .. import io
-
-    if path.suffix.lower() == ".csv":
-        rec = io.read_recording(path, sensor=sensor)
-        s = sensor or rec.sensor or "mag"
-        gyro = rec.gyro if rec.gyro is not None else [None] * len(rec)
-        it = ((float(t), s, v, g) for t, v, g in zip(rec.t, rec.raw, gyro, strict=True))
-        return it, {s: unit or rec.unit or _UNIT_OF_SENSOR[s]}
-    it = ((m.t, _SENSOR_OF_KIND[m.kind], m.xyz, m.gyro) for m in io.iter_bag_messages(path))
-    return it, dict(_UNIT_OF_SENSOR)
-
-
-def replay(path: Path, *, sensor: str | None = None, unit: str | None = None, status_every: float = 10.0,
-           progress: bool = True, on_line: Any = None, validator: Any = None) -> dict[str, Any]:
-    """Run the pipeline over a recording; returns calibrators, timeline and counts.
-
-    Args:
-        path: the recording.
-        sensor, unit: for a CSV (see the command's options).
-        status_every: seconds of recording time between timeline status entries (0: events only).
-        progress: show a counter on stderr.
-        on_line: called with each timeline line (str) as it happens.
-        validator: the validator every calibrator uses (None: the shipped default).
-    """
-    samples, units = _samples(path, sensor, unit)
-    bar = _Progress(enabled=progress)
-    cals: dict[str, SensorCalibrator] = {}
-    timeline: list[dict[str, Any]] = []
-    next_status: dict[str, float] = {}
-    n = 0
-    for t, s, xyz, gyro in samples:
-        cal = cals.get(s)
-        if cal is None:
-            cal = cals[s] = SensorCalibrator(s, PipelineConfig.for_sensor(s, units.get(s)), validator=validator)
-            next_status[s] = t
-        for ev in cal.push(t, xyz, gyro):
-            timeline.append(_event_entry(ev))
-            if on_line:
-                bar.clear()
-                on_line(f"{ev.t:9.2f} s  {s:5s}  {ev.kind.value:10s} {ev.message}")
-        if status_every > 0 and t >= next_status[s]:
-            st = cal.status(t)
-            timeline.append({"kind": "status", **st.to_dict()})
-            next_status[s] = t + status_every
-            if on_line:
-                bar.clear()
-                on_line(f"{t:9.2f} s  {s:5s}  {'status':10s} [{st.level.name}] {st.message}")
-        n += 1
-        if n % 1000 == 0:
-            bar.show(f"replay: {n} messages, t = {t:.1f} s")
-    bar.show(f"replay: {n} messages done")
-    bar.clear(final=True)
-    return {"calibrators": cals, "timeline": timeline, "messages": n}
-
-
-class _Progress:
-    """A one-line ``\r`` counter on stderr that steps aside for the timeline lines on stdout."""
-
-    def __init__(self, enabled: bool) -> None:
-        self.enabled = enabled
-        self.width = 0
-
-    def show(self, text: str) -> None:
-        if self.enabled:
-            sys.stdout.flush()
-            print(f"\r{text}", end="", file=sys.stderr, flush=True)
-            self.width = len(text)
-
-    def clear(self, final: bool = False) -> None:
-        if self.enabled and self.width:
-            print("\n" if final else f"\r{' ' * self.width}\r", end="", file=sys.stderr, flush=True)
-            self.width = 0
-
-
-def _event_entry(ev: Event) -> dict[str, Any]:
-    out: dict[str, Any] = {"kind": ev.kind.value, "t": ev.t, "sensor": ev.sensor, "message": ev.message}
-    if ev.kind is EventKind.CALIBRATED and ev.calibration is not None:
-        out["calibration"] = ev.calibration.to_dict()
-    return out
-
-
 def _truth_for(truth: dict[str, Calibration], sensor: str) -> Calibration | None:
     """The truth of ``sensor``: its own entry or the latest ``<sensor>_*`` one (largest stamp)."""
     if sensor in truth:
@@ -166,7 +79,7 @@ def _compare(cal: Calibration, truth: Calibration) -> dict[str, float]:
 
 
 def _plot(cals: dict[str, SensorCalibrator], path: Path) -> None:
-    import matplotlib
+    import matplotlib  # optional dependency (plots only): imported when a plot is asked for
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

@@ -18,14 +18,15 @@ from typing import Any
 
 import numpy as np
 
-from ..calibration import save_calibrations
-from ..errors import ConfigError
-from ..io import BAG_SUFFIXES, write_bag, write_csv
-from ..simulation import (
+from ..model.calibration_file import save_calibrations
+from ..model.errors import ConfigError
+from ..recordings.bag import BAG_SUFFIXES, write_bag
+from ..recordings.csvfile import write_csv
+from ..recordings.recording import Recording
+from ..sim.simulation import (
     EFFECTS,
     PATTERNS,
     HardIronJump,
-    Recording,
     directions,
     magnetometer_stream,
     random_sensor,

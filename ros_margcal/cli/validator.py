@@ -21,11 +21,12 @@ from typing import Any
 import numpy as np
 from scipy.stats import spearmanr
 
-from ..baselines import BASELINES
-from ..corpus import FEATURES, Corpus, build_corpus
-from ..errors import ConfigError
-from ..roc import evaluate_threshold, roc_auc, roc_curve
-from ..validation import DEFAULT_MAX_ERROR, DEFAULT_MAX_FPR, FuzzyValidator, ThresholdValidator
+from ..model.errors import ConfigError
+from ..training.corpus import FEATURES, Corpus, build_corpus
+from ..validation.baselines import BASELINES
+from ..validation.fuzzy import FuzzyValidator
+from ..validation.roc import evaluate_threshold, roc_auc, roc_curve
+from ..validation.threshold import DEFAULT_MAX_ERROR, DEFAULT_MAX_FPR, ThresholdValidator
 
 __all__ = ["evaluate", "register", "train_fuzzy"]
 
@@ -198,7 +199,7 @@ def format_tables(res: dict[str, Any]) -> str:
 
 def plot_roc(res: dict[str, Any], path: Path) -> None:
     """ROC curves of the default fuzzy validator and the baselines on the test groups (PNG)."""
-    import matplotlib
+    import matplotlib  # optional dependency (plots only): imported when a plot is asked for
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

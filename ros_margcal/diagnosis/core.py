@@ -2,13 +2,13 @@
 
 ``diagnose(recording, sensor=...)`` builds the twin (``twin.build_twin``), measures the baseline's own
 spread over seeds, puts the recording against it stage by stage (``stages.stage_gaps``), fits every
-observable effect of the registry (``effects.rank_effects``) and decides:
+observable effect of the registry (``ranking.rank_effects``) and decides:
 
 - ``where``: the stage with the largest gap;
 - ``cause``: ``"none"`` when the recording is within the baseline's spread (every stage gap below
   ``NONE_GAP``), else the effect whose fitted magnitude removes the largest share of the gap (when an
-  effect of another group comes within ``effects.CLOSE_MARGIN`` of it, the one the recording is closer
-  to on the features that separate the two, ``effects.separate_close_calls``) — or
+  effect of another group comes within ``ranking.CLOSE_MARGIN`` of it, the one the recording is closer
+  to on the features that separate the two, ``ranking.separate_close_calls``) — or
   its group's name when the group holds several applicable effects (``ellipsoid_shape``, and
   ``slow_drift`` = bias drift or temperature on a recording without a temperature column: they
   cannot be told apart, so no guess is made between them); ``"unexplained"`` when the gap is clear but no
@@ -21,12 +21,13 @@ mid-recording) gets its twin from the fit of one side of the step (``twin.Twin.c
 ``hard_iron_jump`` first when it removes within ``CHANGE_MARGIN`` of the top effect's share.
 
 ``diagnose_holdout`` fits on the first part of a recording and measures the shrink on the rest.
-``downstream.validator_downstream`` adds the validator's view.
+``validator_downstream`` adds the validator's view.
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -35,20 +36,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ..errors import ConfigError
-from .effects import (
-    EffectFit,
-    applicable_effects,
-    effective_group,
-    equivalent_groups,
-    gap_with,
-    overall_gap,
-    rank_effects,
-)
+from ..model.errors import ConfigError, MargCalError
+from .downstream import N_SET, compare_validators
+from .ranking import EffectFit, applicable_effects, effective_group, equivalent_groups, gap_with, overall_gap, rank_effects
 from .stages import stage_gaps
 from .twin import DEFAULT_N_FIT, Baseline, Twin, build_twin, mean_features
 
-__all__ = ["NONE_GAP", "Diagnosis", "diagnose", "diagnose_holdout"]
+__all__ = ["NONE_GAP", "Diagnosis", "diagnose", "diagnose_holdout", "validator_downstream"]
 
 log = logging.getLogger(__name__)
 
@@ -286,3 +280,47 @@ def diagnose_holdout(recording: Any, *, split: float = 0.5, **options: Any) -> d
             "gap_before": gap_before2, "gap_after": gap_after2,
             "shrink": 1.0 - gap_after2 / gap_before2 if gap_before2 > 0 else 0.0,
             "stages_before": before2, "stages_after": after2}
+
+
+def validator_downstream(diag: Diagnosis, validator: object | None, *, n_sets: int = 400, seed: int = 0) -> dict[str, Any]:
+    """What the chosen effect does to the validator: predicted error before and after retraining.
+
+    The validator's prediction on a ``N_SET``-sample set of the recording (evenly spaced over the
+    fitting subsample, so it spans the whole recording) is compared with the measured error
+    (``validator_errors``, against the best fit of that subsample) by ``compare_validators``:
+    ``original``, ``with_effect`` (retrained on ``n_sets`` simulated sets with the effect at its fitted
+    magnitude) and ``control`` (as many sets without it), the retraining sets at the twin's noise level
+    and labelled like the measured error. The flat keys ``predicted_before`` / ``_after`` / ``_control``
+    and ``log_error_*`` (``|log10(measured / predicted)|``, 0 is perfect) repeat the table for the
+    summary line.
+    """
+    twin = diag.twin
+    if validator is None or twin is None:
+        return {"available": False, "reason": "no validator"}
+    pts = twin.raw[twin.sub]
+    pick = np.linspace(0, len(pts) - 1, min(N_SET, len(pts))).astype(np.intp)
+    ts = twin.t[twin.sub][pick]
+    span = float(ts[-1] - ts[0])
+    best = diag.best
+    retrain = diag.cause != "none" and best is not None
+    effects = {best.name: best.magnitude} if retrain and best is not None else None
+    noise = float(twin.noise) if math.isfinite(twin.noise) and twin.noise > 0 else None
+    kind = twin.sensor if twin.sensor in ("mag", "accel") else None
+    try:
+        cmp = compare_validators(pts[pick], twin.best, validator, effects, span_s=span,
+                                 recording=max(2, round(len(pts) / len(pick))), noise=noise, kind=kind,
+                                 n_sets=n_sets, seed=seed)
+    except MargCalError as exc:
+        return {"available": False, "reason": f"validator downstream failed: {exc}"}
+    v = cmp["validators"]
+    out: dict[str, Any] = {"available": True, **cmp, "predicted_before": v["original"]["predicted"],
+                           "log_error_before": v["original"]["log_error"]}
+    if not retrain or best is None:
+        out.update(predicted_after=out["predicted_before"], log_error_after=out["log_error_before"],
+                   note="cause is none: no retraining")
+        return out
+    out.update(effect=best.name, magnitude=best.magnitude, n_sets=n_sets,
+               predicted_after=v["with_effect"]["predicted"], predicted_control=v["control"]["predicted"],
+               error_ratio_before=v["original"]["ratio"], error_ratio_after=v["with_effect"]["ratio"],
+               log_error_after=v["with_effect"]["log_error"], log_error_control=v["control"]["log_error"])
+    return out

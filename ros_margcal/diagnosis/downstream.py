@@ -17,21 +17,19 @@ from __future__ import annotations
 
 import inspect
 import math
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from ..calibration import Calibration
-from ..corpus import build_corpus, recording_error
-from ..coverage import Indicators, compute_indicators
-from ..errors import MargCalError
-from ..fitting import fit
+from ..coverage.indicators import Indicators, compute_indicators
+from ..model.calibration import Calibration
+from ..model.fitting import fit
+from ..training.corpus import build_corpus
+from ..training.labels import recording_error
+from ..validation.fuzzy import FuzzyValidator
 
-if TYPE_CHECKING:
-    from .core import Diagnosis
-
-__all__ = ["N_SET", "compare_validators", "retrain_validator", "validator_downstream", "validator_errors"]
+__all__ = ["N_SET", "compare_validators", "retrain_validator", "validator_errors"]
 
 Array = NDArray[np.float64]
 
@@ -76,7 +74,6 @@ def retrain_validator(validator: object, n_sets: int, seed: int, effects: dict[s
     (``corpus.make_set(recording=recording)``), each spread over ``duration_s``, with white noise
     ``noise`` (fraction of the field radius; None: the corpus' random range) on a ``kind`` sensor
     (None: mixed). Returns it and a summary of its corpus."""
-    from ..validation import FuzzyValidator
 
     options: dict[str, Any] = {"effects": effects or None, "duration_s": duration_s, "recording": recording,
                                "kind": kind}
@@ -150,47 +147,3 @@ def compare_validators(points: Array, reference: Calibration, validator: object,
                        "ratio": measured / max(pred, _TINY), **summary}
     return {"measured": measured, "n_points": len(points), "span_s": float(span_s), "recording": recording,
             "noise": noise, "validators": table}
-
-
-def validator_downstream(diag: Diagnosis, validator: object | None, *, n_sets: int = 400, seed: int = 0) -> dict[str, Any]:
-    """What the chosen effect does to the validator: predicted error before and after retraining.
-
-    The validator's prediction on a ``N_SET``-sample set of the recording (evenly spaced over the
-    fitting subsample, so it spans the whole recording) is compared with the measured error
-    (``validator_errors``, against the best fit of that subsample) by ``compare_validators``:
-    ``original``, ``with_effect`` (retrained on ``n_sets`` simulated sets with the effect at its fitted
-    magnitude) and ``control`` (as many sets without it), the retraining sets at the twin's noise level
-    and labelled like the measured error. The flat keys ``predicted_before`` / ``_after`` / ``_control``
-    and ``log_error_*`` (``|log10(measured / predicted)|``, 0 is perfect) repeat the table for the
-    summary line.
-    """
-    twin = diag.twin
-    if validator is None or twin is None:
-        return {"available": False, "reason": "no validator"}
-    pts = twin.raw[twin.sub]
-    pick = np.linspace(0, len(pts) - 1, min(N_SET, len(pts))).astype(np.intp)
-    ts = twin.t[twin.sub][pick]
-    span = float(ts[-1] - ts[0])
-    best = diag.best
-    retrain = diag.cause != "none" and best is not None
-    effects = {best.name: best.magnitude} if retrain and best is not None else None
-    noise = float(twin.noise) if math.isfinite(twin.noise) and twin.noise > 0 else None
-    kind = twin.sensor if twin.sensor in ("mag", "accel") else None
-    try:
-        cmp = compare_validators(pts[pick], twin.best, validator, effects, span_s=span,
-                                 recording=max(2, round(len(pts) / len(pick))), noise=noise, kind=kind,
-                                 n_sets=n_sets, seed=seed)
-    except MargCalError as exc:
-        return {"available": False, "reason": f"validator downstream failed: {exc}"}
-    v = cmp["validators"]
-    out: dict[str, Any] = {"available": True, **cmp, "predicted_before": v["original"]["predicted"],
-                           "log_error_before": v["original"]["log_error"]}
-    if not retrain or best is None:
-        out.update(predicted_after=out["predicted_before"], log_error_after=out["log_error_before"],
-                   note="cause is none: no retraining")
-        return out
-    out.update(effect=best.name, magnitude=best.magnitude, n_sets=n_sets,
-               predicted_after=v["with_effect"]["predicted"], predicted_control=v["control"]["predicted"],
-               error_ratio_before=v["original"]["ratio"], error_ratio_after=v["with_effect"]["ratio"],
-               log_error_after=v["with_effect"]["log_error"], log_error_control=v["control"]["log_error"])
-    return out

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import ConfigError
+from ..model.errors import ConfigError
 from .core import Diagnosis
 
 __all__ = ["figure_png", "summary", "write_report"]
@@ -23,7 +23,7 @@ log = logging.getLogger(__name__)
 
 
 def _plt() -> Any:
-    import matplotlib
+    import matplotlib  # optional dependency (plots only): imported when a plot is asked for
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

@@ -53,21 +53,14 @@ from numpy.typing import NDArray
 from scipy.linalg import solve_triangular
 from scipy.special import sph_harm_y
 
-from ..calibration import Calibration
-from ..errors import MargCalError
-from ..fitting import fit
+from ..model.calibration import Calibration
+from ..model.errors import MargCalError
+from ..model.fitting import fit
 from .downstream import N_SET, validator_errors
 
 __all__ = [
-    "STAGES",
-    "STAGE_FLOORS",
-    "StageFeatures",
-    "rest_noise",
-    "sh_basis",
-    "sh_power",
-    "stage_features",
-    "stage_floor",
-    "stage_gaps",
+    "STAGES", "STAGE_FLOORS", "StageFeatures", "rest_noise", "sh_basis", "sh_power", "stage_features",
+    "stage_floor", "stage_gaps"
 ]
 
 log = logging.getLogger(__name__)

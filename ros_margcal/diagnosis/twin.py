@@ -32,14 +32,17 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.signal import savgol_filter
 
-from ..calibration import Calibration
-from ..errors import DegenerateDataError, InputError, MargCalError, as_points
-from ..fitting import fit
-from ..simulation import simulate
+from ..model.calibration import Calibration
+from ..model.errors import DegenerateDataError, InputError, MargCalError, as_points
+from ..model.fitting import fit
+from ..sim.simulation import simulate
 from .changes import OffsetChange, locate_offset_change, moving_mask
 from .stages import StageFeatures, rest_noise, stage_features
 
-__all__ = ["MAX_STEP_DEG", "Baseline", "Twin", "build_twin", "mean_features", "median_step_deg", "smooth_directions", "subsample"]
+__all__ = [
+    "MAX_STEP_DEG", "Baseline", "Twin", "build_twin", "mean_features", "median_step_deg", "smooth_directions",
+    "subsample"
+]
 
 log = logging.getLogger(__name__)
 

@@ -1,0 +1,52 @@
+"""Reading any recording: CSV or rosbag2, chosen by the path."""
+
+from __future__ import annotations
+
+import logging
+import os
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..model.errors import RecordingError
+from .bag import is_bag, read_bag
+from .csvfile import read_csv
+from .recording import Recording, check_sensor
+
+__all__ = ["read_recording"]
+
+log = logging.getLogger(__name__)
+Array = NDArray[np.float64]
+
+
+def read_recording(
+    path: str | os.PathLike[str], *, sensor: str | None = None, topic: str | None = None, sort: bool = False
+) -> Recording:
+    """Read a CSV or rosbag2 recording of one sensor.
+
+    Args:
+        path: a .csv file, a rosbag2 directory, or a .mcap / .db3 file.
+        sensor: "mag" or "accel": for a bag, which message type to read; for a CSV, the label
+            (default: guessed from the file name, "mag" / "acc", else "").
+        topic: for a bag, the topic to read (needed when several match).
+        sort: sort samples whose time goes backwards instead of refusing the file.
+
+    Returns:
+        A Recording without ground truth (``truth`` None).
+
+    Raises:
+        RecordingError: missing file, bad header, non-numeric or non-finite cells, empty file, no
+            (or no unique) matching topic, time going backwards.
+    """
+    check_sensor(sensor)
+    p = Path(path)
+    if not p.exists():
+        msg = f"recording {p} does not exist"
+        raise RecordingError(msg)
+    if is_bag(p):
+        return read_bag(p, sensor, topic, sort)
+    if topic is not None:
+        msg = f"topic= applies to rosbag2 recordings, not to {p}"
+        raise RecordingError(msg)
+    return read_csv(p, sensor, sort)

@@ -1,0 +1,94 @@
+"""A recording: a sensor time series, simulated or read from a file, with the checks every reader applies."""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..model.calibration import Calibration
+from ..model.errors import InputError, RecordingError
+
+__all__ = ["Recording", "check_order", "check_sensor"]
+
+log = logging.getLogger(__name__)
+Array = NDArray[np.float64]
+
+
+@dataclass
+class Recording:
+    """A recorded (or simulated) sensor time series.
+
+    Attributes:
+        t: sample times, seconds, shape (n,), non-decreasing.
+        raw: raw readings, shape (n, 3), raw units.
+        truth: the true calibration (None for a real recording).
+        true_field: the physical vector in the body frame before any effect, (n, 3), or None.
+        still: True where the body was at rest (accelerometer streams), or None.
+        gyro: angular rate in the body frame, rad/s, (n, 3), or None.
+        temp: temperature, °C, (n,), or None.
+        effects: the effects applied, name -> magnitude.
+        sensor: "mag", "accel" or "".
+        unit: unit of the raw readings ("T", "m/s^2", "gauss", ...).
+        true_offset: the true offset per sample when it varies (events, drift), (n, 3), or None.
+    """
+
+    t: Array
+    raw: Array
+    truth: Calibration | None = None
+    true_field: Array | None = None
+    still: NDArray[np.bool_] | None = None
+    gyro: Array | None = None
+    temp: Array | None = None
+    effects: dict[str, float] = field(default_factory=dict)
+    sensor: str = ""
+    unit: str = ""
+    true_offset: Array | None = None
+
+    def __len__(self) -> int:
+        return int(self.raw.shape[0])
+
+    def truth_at(self, time: float) -> Calibration:
+        """The true calibration at ``time`` (the offset follows jumps and drift when recorded)."""
+        if self.truth is None:
+            msg = "this recording has no ground truth (a real recording?)"
+            raise InputError(msg)
+        if self.true_offset is None:
+            return self.truth
+        i = int(np.clip(np.searchsorted(self.t, time, side="right") - 1, 0, len(self.t) - 1))
+        return self.truth.replace(offset=self.true_offset[i])
+
+    def slice(self, index: Any) -> Recording:
+        """A recording of the selected samples (slice, index array or boolean mask)."""
+
+        def pick(a: Any) -> Any:
+            return None if a is None else a[index]
+
+        return Recording(
+            t=self.t[index], raw=self.raw[index], truth=self.truth, true_field=pick(self.true_field),
+            still=pick(self.still), gyro=pick(self.gyro), temp=pick(self.temp), effects=dict(self.effects),
+            sensor=self.sensor, unit=self.unit, true_offset=pick(self.true_offset),
+        )
+
+def check_sensor(sensor: str | None) -> None:
+    if sensor not in (None, "mag", "accel"):
+        msg = f"sensor must be 'mag', 'accel' or None, got {sensor!r}"
+        raise RecordingError(msg)
+
+
+def check_order(t: Array, where: str, sort: bool) -> NDArray[np.intp] | None:
+    """None when ``t`` never decreases; the stable sort order when ``sort``; RecordingError otherwise."""
+    back = np.flatnonzero(np.diff(t) < 0)
+    if back.size == 0:
+        return None
+    if not sort:
+        msg = (
+            f"{where}: time goes backwards at {back.size} place(s), first after sample {int(back[0])} "
+            f"({t[back[0]]!r} -> {t[back[0] + 1]!r}); fix the file or read it with sort=True"
+        )
+        raise RecordingError(msg)
+    log.warning("%s: %d backwards time step(s); samples sorted by time", where, back.size)
+    return np.argsort(t, kind="stable")

@@ -1,0 +1,16 @@
+"""ROS 2 glue: message conversion (``messages``, no rclpy needed) and the node (``node``, rclpy).
+
+This face does not import ``node``: import ``ros_margcal.ros.node`` where rclpy is available.
+"""
+
+from __future__ import annotations
+
+from .messages import (
+    calibrate_imu, calibrate_mag, calibration_from_string, calibration_to_string, imu_to_numpy, mag_to_numpy,
+    propagate_covariance, stamp_to_seconds, status_to_diagnostic, vector3_to_numpy
+)
+
+__all__ = [
+    "calibrate_imu", "calibrate_mag", "calibration_from_string", "calibration_to_string", "imu_to_numpy",
+    "mag_to_numpy", "propagate_covariance", "stamp_to_seconds", "status_to_diagnostic", "vector3_to_numpy"
+]

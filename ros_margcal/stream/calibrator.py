@@ -1,0 +1,486 @@
+"""The streaming calibrator of one sensor: samples in, validated calibrations and a status out.
+
+``SensorCalibrator.push(t, xyz, gyro=None)`` is the whole online flow of DESIGN.md for one
+magnetometer or accelerometer, in pure Python (no rclpy):
+
+1. *Input sanity.* NaN/Inf, wrong sizes, zero vectors, absurd magnitudes, repeated or backwards
+   stamps and bursts faster than ``max_rate_hz`` are dropped and counted per reason; ``push``
+   never raises for a bad sample.
+2. *Gate.* Accelerometer samples go through ``gate.InactivityGate`` (Gietzelt et al. 2013, §2.4:
+   coefficient of variation of the norm over a 2 s window below 3e-3) and only its averaged still
+   samples go on; magnetometer samples go straight on.
+3. *Buffer.* ``coverage.DirectionBuffer`` keeps at most K samples per direction bin (newest
+   replaces oldest) and the coverage indicators A–D of Olivares et al. 2013 (§3.1).
+4. *Validator.* At most every ``refit_every`` samples and ``refit_min_interval_s`` seconds
+   (``recheck_interval_s`` while calibrated), the buffer centre is re-estimated (a linear sphere
+   fit while uncalibrated) and the fuzzy validator (Olivares §3.3, Eq. 17) predicts the calibration
+   error from the indicators; the fit runs only when the prediction is within the threshold. The
+   refit cost is therefore never paid per sample.
+5. *Fit.* ``fitting.fit(points, model="sym", method="lm", loss="soft_l1")`` from a ``lin_auto``
+   start (Gietzelt Eqs. 5–17, then Camps et al. 2009 LM with the symmetric matrix).
+6. *Guard rails* (``config.guard_rails``, after ArduPilot's compass/accel calibration
+   checks) before a fit is published: convergence, residual RMS limit, plausible field norm (gravity
+   for the accelerometer, 20–70 µT for the Earth field), parameter uncertainty, offset limit, gain
+   (axis ratio) limits, and the new fit must not be worse than the current calibration on the most
+   recent samples. A rejected fit is reported with its reason.
+7. *Rolling use.* Each sample's relative norm error under the current calibration is kept for the
+   last ``recent_samples``; samples beyond ``outlier_threshold`` are not buffered (field
+   disturbances). When the median over the last ``change_window`` samples has stayed above
+   ``change_threshold`` for ``change_min_duration_s``, the sensor has changed (a hard-iron jump, a
+   drift): the buffer is rebuilt from the samples since the change began and the next validated fit
+   describes the new sensor (the not-worse check then uses only those samples, on which the old
+   calibration is poor). A slow drift is also followed by the periodic rechecks while calibrated.
+
+The state is one of ``State`` (collecting, ready, calibrated, rejected); ``status()`` returns a
+``Status`` with everything ``/calib/status`` shows, its ``level`` an ``IntEnum`` (the node turns it
+into the bytes rclpy wants).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections import deque
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ..coverage.buffer import DirectionBuffer
+from ..coverage.gate import InactivityGate
+from ..model.calibration import Calibration
+from ..model.errors import ConfigError, MargCalError
+from ..model.fitting import fit
+from ..validation.shipped import default_validator
+from .config import PipelineConfig, guard_rails
+from .status import Event, EventKind, Level, State, Status, pct
+
+__all__ = ["Event", "EventKind", "Level", "PipelineConfig", "SensorCalibrator", "State", "Status", "default_validator"]
+
+log = logging.getLogger(__name__)
+
+Array = NDArray[np.float64]
+
+
+DROP_REASONS = ("wrong_size", "nonfinite", "zero", "magnitude", "repeated_stamp", "backwards_stamp", "burst", "outlier")
+
+
+class SensorCalibrator:
+    """Online calibration of one sensor (see the module docstring for the flow).
+
+    Args:
+        sensor: ``"mag"`` or ``"accel"``.
+        config: the options; ``PipelineConfig.for_sensor(sensor)`` when None.
+        validator: an object with ``predict_indicators(indicators) -> float`` and ``threshold``;
+            None loads the trained default (``default_validator``).
+        calibration: a calibration to start from (loaded from file); the state is then calibrated.
+    """
+
+    def __init__(
+        self,
+        sensor: str = "mag",
+        config: PipelineConfig | None = None,
+        *,
+        validator: Any | None = None,
+        calibration: Calibration | None = None,
+    ) -> None:
+        if sensor not in ("mag", "accel"):
+            msg = f"sensor must be 'mag' or 'accel', got {sensor!r}"
+            raise ConfigError(msg)
+        self.sensor = sensor
+        self.config = (config or PipelineConfig.for_sensor(sensor)).checked()
+        if self.config.sensor != sensor:
+            self.config = replace(self.config, sensor=sensor)
+        self.validator = validator if validator is not None else default_validator()
+        self._initial = calibration
+        self.reset()
+        if calibration is not None:
+            self._install(calibration)
+
+    # -- lifecycle --------------------------------------------------------------------------------
+
+    def reset(self, *, keep_calibration: bool = False) -> None:
+        """Forget all samples (and the calibration unless ``keep_calibration``); counters restart."""
+
+        cfg = self.config
+        cal = self._cal if keep_calibration and hasattr(self, "_cal") else None
+        self._buffer = DirectionBuffer(n_bins=cfg.n_bins, per_bin=cfg.per_bin)
+        self._gate: Any = None
+        if self.sensor == "accel":
+
+            self._gate = InactivityGate(window_s=cfg.gate_window_s, cv_threshold=cfg.gate_cv_threshold,
+                                        gyro_threshold=cfg.gate_gyro_threshold)
+        self._recent_t: deque[float] = deque(maxlen=cfg.recent_samples)
+        self._recent_v: deque[tuple[float, float, float]] = deque(maxlen=cfg.recent_samples)
+        self._recent_r: deque[float] = deque(maxlen=cfg.recent_samples)
+        self.dropped = dict.fromkeys(DROP_REASONS, 0)
+        self.seen = 0
+        self.passed = 0
+        self.kept = 0
+        self._last_t: float | None = None
+        self._last_accepted_t = -math.inf
+        self._since_eval = 0
+        self._last_eval_t = -math.inf
+        self._t = 0.0
+        self._state = State.COLLECTING
+        self._cal: Calibration | None = None
+        self._changed = False
+        self._suspect_since: float | None = None
+        self._change_onset: float | None = None
+        self._predicted: float | None = None
+        self._indicators: Any = None
+        self._last_rejection = ""
+        self._last_reason = "waiting for samples"
+        self.fits_accepted = 0
+        self.fits_rejected = 0
+        self.changes = 0
+        self._w: tuple[float, ...] = ()
+        if cal is not None:
+            self._install(cal)
+
+    def reconfigure(self, config: PipelineConfig) -> None:
+        """Use new options from now on; buffer or gate options rebuild them (the calibration is kept)."""
+        config = replace(config.checked(), sensor=self.sensor)
+        rebuild = any(getattr(config, k) != getattr(self.config, k) for k in
+                      ("n_bins", "per_bin", "recent_samples", "gate_window_s", "gate_cv_threshold", "gate_gyro_threshold"))
+        self.config = config
+        if rebuild:
+            self.reset(keep_calibration=True)
+
+    def set_calibration(self, cal: Calibration | None) -> None:
+        """Replace the current calibration (None: forget it and start collecting)."""
+        if cal is None:
+            self._cal, self._w = None, ()
+            self._state = State.COLLECTING
+        else:
+            self._install(cal)
+
+    @property
+    def calibration(self) -> Calibration | None:
+        """The current (last accepted) calibration, or None."""
+        return self._cal
+
+    @property
+    def state(self) -> State:
+        """The current state."""
+        return self._state
+
+    @property
+    def buffer(self) -> Any:
+        """The direction buffer (read it, do not push into it)."""
+        return self._buffer
+
+    def _install(self, cal: Calibration) -> None:
+        self._cal = cal
+        w, b = cal.matrix, cal.offset
+        self._w = (*w.reshape(-1).tolist(), *b.tolist(), cal.norm)
+        self._state = State.CALIBRATED
+        self._changed = False
+        self._suspect_since = None
+        self._change_onset = None
+        if len(self._recent_v):
+            r = np.abs(cal.norm_error(np.array(self._recent_v))) / cal.norm
+            self._recent_r = deque(r.tolist(), maxlen=self.config.recent_samples)
+        self._buffer.set_center(cal.offset, cal.raw_radius)
+
+    # -- the sample path --------------------------------------------------------------------------
+
+    def _rel_error(self, x: float, y: float, z: float) -> float:
+        w = self._w
+        x, y, z = x - w[9], y - w[10], z - w[11]
+        hx = w[0] * x + w[1] * y + w[2] * z
+        hy = w[3] * x + w[4] * y + w[5] * z
+        hz = w[6] * x + w[7] * y + w[8] * z
+        return abs(math.sqrt(hx * hx + hy * hy + hz * hz) / w[12] - 1.0)
+
+    def push(self, t: float, xyz: ArrayLike, gyro: ArrayLike | None = None) -> list[Event]:
+        """Feed one raw sample at message time ``t`` (seconds); returns what happened (often nothing).
+
+        Never raises for bad input: such samples are dropped and counted in ``dropped``.
+        """
+        self.seen += 1
+        drop = self.dropped
+        try:
+            x, y, z = (float(v) for v in np.asarray(xyz, dtype=np.float64).reshape(3))
+            t = float(t)
+        except (TypeError, ValueError):
+            drop["wrong_size"] += 1
+            return []
+        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z) and math.isfinite(t)):
+            drop["nonfinite"] += 1
+            return []
+        mag = math.sqrt(x * x + y * y + z * z)
+        cfg = self.config
+        if mag <= cfg.min_magnitude:
+            drop["zero"] += 1
+            return []
+        if mag > cfg.max_magnitude:
+            drop["magnitude"] += 1
+            return []
+        last = self._last_t
+        if last is not None:
+            if t == last:
+                drop["repeated_stamp"] += 1
+                return []
+            if t < last:
+                drop["backwards_stamp"] += 1
+                return []
+        self._last_t = t
+        if t - self._last_accepted_t < cfg.min_period_s:
+            drop["burst"] += 1
+            return []
+        self._last_accepted_t = t
+        self._t = t
+        self.passed += 1
+        if self._gate is not None:
+            g = None
+            if gyro is not None:
+                try:
+                    g = np.asarray(gyro, dtype=np.float64).reshape(3)
+                    if not np.isfinite(g).all():
+                        g = None
+                except (TypeError, ValueError):
+                    g = None
+            out = self._gate.push(t, (x, y, z), g)
+            if out is None:
+                return []
+            x, y, z = (float(v) for v in np.asarray(out, dtype=np.float64).reshape(3))
+        return self._accept(t, x, y, z)
+
+    def _accept(self, t: float, x: float, y: float, z: float) -> list[Event]:
+        events: list[Event] = []
+        cfg = self.config
+        r = self._rel_error(x, y, z) if self._cal is not None else 0.0
+        self._recent_t.append(t)
+        self._recent_v.append((x, y, z))
+        self._recent_r.append(r)
+        if self._cal is not None and not self._changed:
+            if r > cfg.change_threshold or self._suspect_since is not None:
+                events += self._check_change(t)
+            if not self._changed and r > cfg.outlier_threshold:
+                self.dropped["outlier"] += 1
+                return events
+        if self._buffer.push(t, (x, y, z)):
+            self.kept += 1
+        self._since_eval += 1
+        interval = cfg.recheck_interval_s if (self._cal is not None and not self._changed) else cfg.refit_min_interval_s
+        if self._since_eval >= cfg.refit_every and t - self._last_eval_t >= interval:
+            events += self._evaluate(t, force=False)
+        return events
+
+    def _check_change(self, t: float) -> list[Event]:
+        """Declare a change when the windowed median residual stays above the threshold long enough."""
+        cfg = self.config
+        k = cfg.change_window
+        if len(self._recent_r) < k:
+            return []
+        window = list(self._recent_r)[-k:]
+        med = float(np.median(window))
+        if med <= cfg.change_threshold:
+            self._suspect_since = None
+            return []
+        if self._suspect_since is None:
+            # the median of k samples crosses when about half of them are bad: the change began there
+            self._suspect_since = self._recent_t[-(k // 2) - 1]
+        onset = self._suspect_since
+        if t - onset < cfg.change_min_duration_s:
+            return []
+        times = np.asarray(self._recent_t)
+        first_bad = int(np.searchsorted(times, onset))
+        # the median puts the onset within a sample or two; samples there that the old calibration
+        # still explains were taken before the change and would bias the new fit (one pre-jump sample
+        # in 64 moved the offset by 9 % of the norm), so the new buffer starts at the first bad one
+        resid = self._recent_r
+        while first_bad < len(resid) - 1 and resid[first_bad] <= cfg.change_threshold:
+            first_bad += 1
+        onset = float(times[first_bad])
+        self._changed = True
+        self._change_onset = onset
+        self.changes += 1
+        self._suspect_since = None
+        pts = np.array(self._recent_v)[first_bad:]
+        tt = times[first_bad:]
+        self._buffer.clear()
+        cal = self._cal
+        self._buffer.set_center(np.zeros(3) if cal is None else cal.offset, 1.0 if cal is None else cal.raw_radius)
+        for ti, p in zip(tt, pts, strict=True):
+            self._buffer.push(float(ti), p)
+        self._since_eval = len(self._buffer)
+        self._predicted = None
+        msg = (f"sensor changed at t={onset:.2f} s: median residual {pct(med)} > {pct(cfg.change_threshold)} "
+               f"for {t - onset:.1f} s; recollecting")
+        log.info("%s: %s", self.sensor, msg)
+        self._last_reason = msg
+        events = [Event(EventKind.CHANGED, t, self.sensor, msg)]
+        return events + self._set_state(State.COLLECTING, t)
+
+    def _set_state(self, state: State, t: float) -> list[Event]:
+        if state == self._state:
+            return []
+        old, self._state = self._state, state
+        return [Event(EventKind.STATE, t, self.sensor, f"{old.value} -> {state.value}")]
+
+    # -- validation, fit, guard rails -------------------------------------------------------------
+
+    def refit(self, t: float | None = None) -> list[Event]:
+        """Validate and fit now, ignoring the cadence (the refit service). The validator still decides."""
+        return self._evaluate(self._t if t is None else float(t), force=True)
+
+    def _update_center(self) -> None:
+        if self._cal is not None and not self._changed:
+            return
+        pts = np.concatenate([self._buffer.points(), self._recent_points()])
+        if len(pts) < 10:
+            return
+        # centre and radius from a linear sphere fit (cheap); the LM fit refines it later
+        a = np.c_[2.0 * pts, np.ones(len(pts))]
+        sol, *_ = np.linalg.lstsq(a, (pts * pts).sum(axis=1), rcond=None)
+        c = sol[:3]
+        rad2 = sol[3] + c @ c
+        if np.isfinite(c).all() and np.isfinite(rad2) and rad2 > 0:
+            self._buffer.set_center(c, math.sqrt(rad2))
+
+    def _evaluate(self, t: float, *, force: bool) -> list[Event]:
+        cfg = self.config
+        self._since_eval = 0
+        self._last_eval_t = t
+        self._update_center()
+        n = len(self._buffer)
+        if n < cfg.min_points:
+            self._predicted = None
+            self._last_reason = f"{n} samples buffered, need {cfg.min_points}"
+            return [Event(EventKind.REJECTED, t, self.sensor, f"not fitted: {self._last_reason}")] if force else []
+        self._indicators = self._buffer.indicators()
+        try:
+            pred = float(self.validator.predict_indicators(self._indicators))
+        except MargCalError as exc:
+            pred = math.inf
+            log.warning("%s: validator failed: %s", self.sensor, exc)
+        self._predicted = pred
+        thr = self.threshold
+        if not pred <= thr:
+            self._last_reason = (f"{pct(self.coverage)} coverage, predicted error {pct(pred)} > {pct(thr)}: "
+                                 "turn the sensor through the directions not yet covered")
+            events = [Event(EventKind.REJECTED, t, self.sensor, f"not fitted: {self._last_reason}")] if force else []
+            if self._cal is None or self._changed:
+                events += self._set_state(State.COLLECTING, t)
+            return events
+        events = []
+        if self._cal is None or self._changed:
+            events += self._set_state(State.READY, t)
+        return events + self._fit(t)
+
+    @property
+    def threshold(self) -> float:
+        """The predicted-error threshold in use (config override or the validator's)."""
+        if self.config.max_predicted_error is not None:
+            return self.config.max_predicted_error
+        thr = getattr(self.validator, "threshold", None)
+        return float(thr) if thr is not None else 0.01
+
+    @property
+    def coverage(self) -> float:
+        """Fraction of direction bins holding at least one sample (0..1)."""
+        return float(self._buffer.coverage())
+
+    def _fit(self, t: float) -> list[Event]:
+
+        cfg = self.config
+        pts = self._buffer.points()
+        try:
+            scale = None
+            if cfg.f_scale_rel is not None:
+                ref = cfg.reference_norm or float(np.median(np.linalg.norm(pts - pts.mean(axis=0), axis=1)))
+                scale = cfg.f_scale_rel * ref
+            cal = fit(pts, model=cfg.model, method=cfg.method, norm=cfg.reference_norm, loss=cfg.loss,
+                      f_scale=scale, init="lin_auto", max_iter=cfg.max_iter, sensor=self.sensor, unit=cfg.unit)
+            cal = cal.replace(stamp=t)
+            reason = guard_rails(cal, cfg, self._recent_points(), self._cal)
+        except (ValueError, ArithmeticError) as exc:  # MargCalError is a ValueError, as is LinAlgError
+            return self._reject(t, f"fit failed: {exc}")
+        if reason:
+            return self._reject(t, reason)
+        self._install(cal)
+        self.fits_accepted += 1
+        self._last_rejection = ""
+        assert cal.stats is not None
+        msg = (f"calibrated from {len(pts)} samples: residual {pct(cal.stats.rms_relative)}, "
+               f"offset {np.array2string(cal.offset, precision=4)}")
+        log.info("%s: %s", self.sensor, msg)
+        return [*self._set_state(State.CALIBRATED, t), Event(EventKind.CALIBRATED, t, self.sensor, msg, cal)]
+
+    def _recent_points(self) -> Array:
+        pts = np.array(self._recent_v, dtype=np.float64).reshape(-1, 3)
+        if self._changed and self._change_onset is not None:
+            pts = pts[np.asarray(self._recent_t) >= self._change_onset]
+        return pts
+
+    def _reject(self, t: float, reason: str) -> list[Event]:
+        self.fits_rejected += 1
+        self._last_rejection = reason
+        self._last_reason = reason
+        log.info("%s: fit rejected: %s", self.sensor, reason)
+        events = [Event(EventKind.REJECTED, t, self.sensor, f"fit rejected: {reason}")]
+        if self._cal is None:
+            events += self._set_state(State.REJECTED, t)
+        elif self._changed:
+            events += self._set_state(State.COLLECTING, t)
+        return events
+
+    # -- status -----------------------------------------------------------------------------------
+
+    def residual(self) -> float | None:
+        """RMS relative norm error of the current calibration on the recent samples."""
+        if self._cal is None or not len(self._recent_v):
+            return None
+        pts = self._recent_points()
+        if not len(pts):
+            return None
+        e = self._cal.norm_error(pts) / self._cal.norm
+        return float(np.sqrt(np.mean(e * e)))
+
+    def status(self, now: float | None = None) -> Status:
+        """The status at message time ``now`` (default: the last sample's time)."""
+        t = self._t if now is None else float(now)
+        cal = self._cal
+        res = self.residual()
+        st = self._state
+        if self.seen == 0:
+            level, msg = Level.STALE, "no samples received yet"
+        elif st is State.CALIBRATED and not self._changed:
+            level = Level.OK
+            msg = f"calibrated: residual {pct(res)}, age {max(0.0, t - cal.stamp):.0f} s" if cal else "calibrated"
+            if self._last_rejection:
+                msg += f"; last refit rejected: {self._last_rejection}"
+        elif st is State.REJECTED:
+            level, msg = Level.ERROR, f"rejected: {self._last_rejection}"
+        elif st is State.READY:
+            level, msg = Level.WARN, f"ready: predicted error {pct(self._predicted)} <= {pct(self.threshold)}, fitting"
+        else:
+            level = Level.WARN
+            if self._changed:
+                msg = f"collecting after a sensor change (residual {pct(res)}): {self._last_reason}"
+            elif self._predicted is not None:
+                msg = (f"collecting: {pct(self.coverage)} coverage, "
+                       f"predicted error {pct(self._predicted)} > {pct(self.threshold)}")
+            else:
+                msg = f"collecting: {self._last_reason}"
+        ind = self._indicators
+        ind_d: dict[str, float] = {}
+        if ind is not None:
+            for k in ("A", "B", "C", "D", "b_frac", "c_norm", "d_norm"):
+                v = getattr(ind, k, None)
+                if v is not None:
+                    ind_d[k] = float(v)
+        return Status(
+            sensor=self.sensor, level=level, state=st, message=msg, t=t, samples_seen=self.seen,
+            samples_kept=self.kept, samples_rejected=sum(self.dropped.values()),
+            dropped={k: v for k, v in self.dropped.items() if v}, buffer_size=len(self._buffer),
+            coverage=self.coverage, indicators=ind_d, predicted_error=self._predicted, error_threshold=self.threshold,
+            residual=res, offset=None if cal is None else tuple(cal.offset.tolist()),
+            matrix=None if cal is None else tuple(cal.matrix.reshape(-1).tolist()),
+            norm=None if cal is None else cal.norm, age=None if cal is None else max(0.0, t - cal.stamp),
+            fits_accepted=self.fits_accepted, fits_rejected=self.fits_rejected,
+            last_rejection=self._last_rejection, changes_detected=self.changes,
+        )
