@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import importlib.util
 from pathlib import Path
+from types import ModuleType
 
 import numpy as np
 import pytest
@@ -31,3 +33,22 @@ def real_data_dir() -> Path:
     if not REAL_DATA.is_dir():
         pytest.skip(f"real recordings not present at {REAL_DATA} (they live outside the package)")
     return REAL_DATA
+
+
+def _load_independent() -> ModuleType:
+    spec = importlib.util.spec_from_file_location("margcal_independent_generator",
+                                                  Path(__file__).with_name("independent") / "generator.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+INDEPENDENT = _load_independent()
+"""``tests/independent/generator.py``: recordings made without any code of the package."""
+
+
+@pytest.fixture
+def independent() -> ModuleType:
+    """The independent generator (see ``INDEPENDENT``)."""
+    return INDEPENDENT
