@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Make the example recording shipped with ros_margcal (deterministic: same seed, same bytes of data).
+"""Make the example recording shipped with ros_margcal (deterministic: same seed, same messages and truth).
 
 Writes ``ros_margcal/data/example_imu.mcap``: six minutes of a hand-tumbled IMU, still periods of
 2.5-5 s at random orientations joined by smooth turns (up to 150 °/s) with linear acceleration:
@@ -10,6 +10,10 @@ Writes ``ros_margcal/data/example_imu.mcap``: six minutes of a hand-tumbled IMU,
 
 and ``ros_margcal/data/example_truth.yaml`` with the true calibrations (``calibration.save_calibrations``):
 ``accel``, ``mag_before`` and ``mag_after`` (whose ``stamp`` is the jump time).
+
+Same messages, not the same bytes: the .mcap's zstd-compressed chunks depend on the compressor build,
+and the truth file is written in the current format (the shipped one may be an older format_version).
+``tests/recordings/test_recordings.py`` compares topics, stamps, serialised messages and calibrations.
 
 Usage: ``python scripts/make_example.py [--out-dir DIR] [--force]``.
 """

@@ -26,6 +26,11 @@ def _run_bench(args: argparse.Namespace) -> int:
     return int(module.main(list(args.bench_args)))
 
 
+def _one_line(exc: BaseException) -> str:
+    """The message of ``exc`` on one line (a YAML or reader message may span several)."""
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser with every subcommand registered."""
 
@@ -47,14 +52,21 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of ``margcal``; returns the exit code (2 for bad input, 1 for other failures)."""
+    """Entry point of ``margcal``; returns the exit code (2 for bad input, 1 for other failures).
+
+    Bad input (any MargCalError) and a file the system refuses (OSError: a full disk, no permission)
+    are reported on one line, never as a traceback; a traceback is left for bugs.
+    """
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     try:
         return int(args.func(args))
     except MargCalError as exc:
-        print(f"margcal {args.command}: error: {exc}", file=sys.stderr)
+        print(f"margcal {args.command}: error: {_one_line(exc)}", file=sys.stderr)
         return 2
+    except OSError as exc:
+        print(f"margcal {args.command}: error: {_one_line(exc)}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print(f"margcal {args.command}: interrupted", file=sys.stderr)
         return 130

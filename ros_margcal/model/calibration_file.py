@@ -1,11 +1,34 @@
-"""Calibration files: the ``ros__parameters`` YAML the node and ``margcal calibrate`` write and read."""
+"""Calibration files: the ``ros__parameters`` YAML the node and ``margcal calibrate`` write and read.
+
+Integrity (format_version 2): the file ends with a YAML comment ``# sha256: <64 hex digits>``, the
+SHA-256 of the canonical content (the parsed document as JSON with sorted keys and no spaces), so
+the file stays a plain params file for ``--params-file`` while a file cut short (a full disk, a
+kill during a copy) or changed after writing is refused instead of loading a wrong norm or losing
+a sensor. Comments and formatting may change; values may not.
+
+Old files: format_version 1 was written by ros_margcal 0.1, which had no checksum; a file whose
+entries are all version 1 and which has no checksum line is read unchecked. A file with a version 2
+entry and no checksum line is refused (a cut file loses its last line first). To keep a deliberate
+hand edit of a version 2 file, delete its checksum line and set its ``format_version`` to 1.
+
+Every failure to load is a CalibrationFileError with a one-line message: not a regular file (a
+FIFO, a device), larger than 1 MiB, not UTF-8, not YAML, nested too deeply, YAML aliases (which a
+calibration file never needs and an alias bomb abuses), a bad checksum, a bad field.
+"""
 
 from __future__ import annotations
 
 import contextlib
+import glob
+import hashlib
+import json
 import os
+import re
+import stat
 import tempfile
+import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import yaml
@@ -18,36 +41,158 @@ __all__ = ["calibration_from_yaml", "calibration_to_yaml", "load_calibrations", 
 
 Array = NDArray[np.float64]
 
+MAX_BYTES = 1 << 20
+"""Largest calibration file read (1 MiB; a real one is about 1 KiB per sensor)."""
+
+_CHECKSUM = re.compile(r"^# sha256: ([0-9a-f]{64})[ \t]*\r?$", re.MULTILINE)
+_STALE_TMP_S = 60.0  # a save takes milliseconds: an older temp file of the same target is debris of a killed save
+
+
+class _StrictLoader(yaml.SafeLoader):
+    """SafeLoader refusing aliases: a calibration file never has any, and an alias bomb expands when read."""
+
+    def compose_node(self, parent: Any, index: Any) -> Any:
+        if self.check_event(yaml.AliasEvent):
+            mark = self.peek_event().start_mark
+            raise yaml.composer.ComposerError(None, None, "YAML aliases (*name) are not allowed here", mark)
+        return super().compose_node(parent, index)
+
+
+def _one_line(text: str) -> str:
+    return " ".join(str(text).split())
+
+
+def _digest(doc: Any) -> str:
+    """SHA-256 of the canonical content: the document as JSON, keys sorted, no spaces."""
+    canon = json.dumps(doc, sort_keys=True, separators=(",", ":"), ensure_ascii=True, allow_nan=True)
+    return hashlib.sha256(canon.encode("ascii")).hexdigest()
+
+
+def _load_yaml(text: str, where: str) -> Any:
+    try:
+        return yaml.load(text, Loader=_StrictLoader)  # a SafeLoader subclass
+    except RecursionError:
+        msg = f"{where} is nested too deeply to be a calibration file"
+        raise CalibrationFileError(msg) from None
+    except Exception as exc:  # YAMLError, and ValueError/OverflowError from scalar constructors (dates, big ints)
+        msg = f"{where} is not valid YAML ({_one_line(str(exc))}); delete it or restore a backup"
+        raise CalibrationFileError(msg) from exc
+
 
 def _dump(cals: dict[str, Calibration], node: str) -> str:
     doc = {node: {"ros__parameters": {"calibration": {k: c.to_dict() for k, c in cals.items()}}}}
-    return yaml.safe_dump(doc, sort_keys=False, default_flow_style=None)
+    text = yaml.safe_dump(doc, sort_keys=False, default_flow_style=None)
+    return f"{text}# sha256: {_digest(_load_yaml(text, '<dump>'))}\n"  # digest of what a reader will parse
 
 
-def _parse(text: str, where: str) -> dict[str, Calibration]:
-    try:
-        doc = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        msg = f"{where} is not valid YAML ({exc}); delete it or restore a backup"
-        raise CalibrationFileError(msg) from exc
-    if not isinstance(doc, dict):
-        msg = f"{where} is not a ros__parameters calibration file"
+def _block(doc: Any, where: str) -> dict[Any, Any]:
+    if isinstance(doc, dict):
+        for node_params in doc.values():
+            if isinstance(node_params, dict) and isinstance(node_params.get("ros__parameters"), dict):
+                block = node_params["ros__parameters"].get("calibration")
+                if isinstance(block, dict) and block:
+                    return block
+        msg = f"{where} has no '<node>: ros__parameters: calibration:' block"
         raise CalibrationFileError(msg)
-    for node_params in doc.values():
-        if isinstance(node_params, dict) and isinstance(node_params.get("ros__parameters"), dict):
-            block = node_params["ros__parameters"].get("calibration")
-            if isinstance(block, dict) and block:
-                return {str(k): Calibration.from_dict(v) for k, v in block.items()}
-    msg = f"{where} has no '<node>: ros__parameters: calibration:' block"
+    msg = f"{where} is not a ros__parameters calibration file"
     raise CalibrationFileError(msg)
 
 
+def _check_integrity(text: str, doc: Any, block: dict[Any, Any], where: str) -> None:
+    """Refuse a newer file, a checksum that does not match, and a version 2 file without its checksum line."""
+    versions = [e.get("format_version") for e in block.values() if isinstance(e, dict)]
+    versions = [v for v in versions if type(v) is int]
+    if versions and max(versions) > Calibration.FORMAT_VERSION:
+        msg = (f"{where}: calibration format_version {max(versions)} is newer than this ros_margcal understands "
+               f"({Calibration.FORMAT_VERSION}); upgrade ros_margcal or refit")
+        raise CalibrationFileError(msg)
+    sums = _CHECKSUM.findall(text)
+    if len(sums) > 1:
+        msg = f"{where} has {len(sums)} '# sha256:' lines; a calibration file has one, at its end"
+        raise CalibrationFileError(msg)
+    if sums:
+        try:
+            actual = _digest(doc)
+        except (TypeError, ValueError, RecursionError) as exc:  # keys or values JSON cannot hold: not ours
+            msg = f"{where}: its content cannot be checked against its checksum ({_one_line(str(exc))})"
+            raise CalibrationFileError(msg) from None
+        if actual != sums[0]:
+            msg = (f"{where}: checksum mismatch: the file was cut short or changed after it was written; restore a "
+                   "backup or refit (to keep a deliberate edit: delete the '# sha256:' line, set format_version: 1)")
+            raise CalibrationFileError(msg)
+    elif any(v >= 2 for v in versions):
+        msg = (f"{where} has no '# sha256:' checksum line although format_version 2 files end with one: "
+               "the file was cut short; restore a backup or refit")
+        raise CalibrationFileError(msg)
+
+
+def _parse(text: str, where: str) -> dict[str, Calibration]:
+    doc = _load_yaml(text, where)
+    block = _block(doc, where)
+    _check_integrity(text, doc, block, where)
+    cals: dict[str, Calibration] = {}
+    for key, entry in block.items():
+        try:
+            cals[str(key)] = Calibration.from_dict(entry)
+        except CalibrationFileError as exc:
+            msg = f"{where}: sensor {str(key)!r}: {_one_line(str(exc))}"
+            raise CalibrationFileError(msg) from exc
+    return cals
+
+
+def _pid_alive(pid: int) -> bool:
+    if os.name != "posix":  # os.kill(pid, 0) is no probe on Windows: rely on the age rule there
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (OSError, OverflowError):  # PermissionError: alive, another user's
+        return True
+    return True
+
+
+def _remove_stale_temps(target: Path) -> None:
+    """Delete temp files of earlier saves of ``target`` that were killed before their rename.
+
+    A temp file is named ``.<target>.<pid>.<random>.tmp``; it is debris when its process is gone or
+    when it is older than a minute (a save takes milliseconds; this also covers names without a pid).
+    A live process's recent temp file is left alone: it may be a save running right now.
+    """
+    head = f".{target.name}."
+    now = time.time()
+    for tmp in target.parent.glob(f"{glob.escape(head)}*.tmp"):
+        pid_text = tmp.name[len(head) :].split(".", 1)[0]
+        with contextlib.suppress(OSError):
+            info = tmp.lstat()
+            if not stat.S_ISREG(info.st_mode):
+                continue
+            dead = pid_text.isdigit() and int(pid_text) != os.getpid() and not _pid_alive(int(pid_text))
+            if dead or now - info.st_mtime > _STALE_TMP_S:
+                tmp.unlink()
+
+
+def _fsync_dir(folder: Path) -> None:
+    """Make a rename in ``folder`` durable (a no-op where directories cannot be opened, e.g. Windows)."""
+    with contextlib.suppress(OSError):
+        fd = os.open(folder, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
 def save_calibrations(path: str | os.PathLike[str], cals: dict[str, Calibration], node: str = "margcal") -> Path:
-    """Write calibrations per sensor atomically (temp file in the same folder, fsync, rename)."""
+    """Write calibrations per sensor atomically (temp file in the same folder, fsync, rename, fsync the folder).
+
+    The file ends with its checksum line; temp files left by earlier killed saves of the same target
+    are removed first (``_remove_stale_temps``).
+    """
     target = Path(path)
     target.parent.mkdir(parents=True, exist_ok=True)
     text = _dump(cals, node)
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+    _remove_stale_temps(target)
+    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.{os.getpid()}.", suffix=".tmp", dir=target.parent)
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as fh:
             fh.write(text)
@@ -61,22 +206,52 @@ def save_calibrations(path: str | os.PathLike[str], cals: dict[str, Calibration]
         with contextlib.suppress(OSError):
             os.unlink(tmp)
         raise
+    _fsync_dir(target.parent)
     return target
+
+
+def _read_text(p: Path, where: str) -> str:
+    """The file's text: a regular file (never a FIFO or device, which could block or never end) of at most 1 MiB."""
+    try:
+        fd = os.open(p, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0))
+    except (OSError, ValueError) as exc:  # ValueError: a NUL in the path
+        msg = f"cannot read calibration file {where}: {_one_line(str(exc))}"
+        raise CalibrationFileError(msg) from exc
+    info = os.fstat(fd)
+    if not stat.S_ISREG(info.st_mode) or info.st_size > MAX_BYTES:
+        os.close(fd)
+        why = "not a regular file" if not stat.S_ISREG(info.st_mode) else f"{info.st_size} bytes, more than {MAX_BYTES}"
+        msg = f"cannot read calibration file {where}: {why}"
+        raise CalibrationFileError(msg)
+    with os.fdopen(fd, "rb") as fh:
+        try:
+            data = fh.read(MAX_BYTES + 1)
+        except OSError as exc:
+            msg = f"cannot read calibration file {where}: {_one_line(str(exc))}"
+            raise CalibrationFileError(msg) from exc
+    if len(data) > MAX_BYTES:
+        msg = f"cannot read calibration file {where}: more than {MAX_BYTES} bytes"
+        raise CalibrationFileError(msg)
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        msg = f"cannot read calibration file {where}: not UTF-8 ({exc})"
+        raise CalibrationFileError(msg) from exc
 
 
 def load_calibrations(path: str | os.PathLike[str]) -> dict[str, Calibration]:
     """Read the calibrations of a file written by ``save_calibrations``; CalibrationFileError if unusable."""
-    p = Path(path)
     try:
-        text = p.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        msg = f"cannot read calibration file {p}: {exc}"
+        p = Path(path)
+    except TypeError as exc:
+        msg = f"calibration file path must be a path, got {type(path).__name__}"
         raise CalibrationFileError(msg) from exc
-    return _parse(text, str(p))
+    where = str(p) if str(p).isprintable() else repr(str(p))
+    return _parse(_read_text(p, where), where)
 
 
 def calibration_to_yaml(cal: Calibration, node: str = "margcal") -> str:
-    """One calibration alone as a ``ros__parameters`` YAML document."""
+    """One calibration alone as a ``ros__parameters`` YAML document (with its checksum line)."""
     return _dump({cal.sensor or "sensor": cal}, node)
 
 

@@ -88,8 +88,6 @@ def is_bag(path: Path) -> bool:
     return path.is_dir() or path.suffix in BAG_SUFFIXES
 
 
-
-
 def _open_reader(path: Path) -> Any:
     from rosbags.rosbag2 import Reader  # optional dependency: bags only (a ROS install may lack rosbags)
 
@@ -99,10 +97,23 @@ def _open_reader(path: Path) -> Any:
     try:
         reader = Reader(path)
         reader.open()
-    except Exception as exc:  # rosbags raises ReaderError, but also KeyError/struct errors on junk
-        msg = f"{path} is not a readable rosbag2 bag ({type(exc).__name__}: {exc})"
+    except Exception as exc:  # rosbags raises ReaderError, but also KeyError/struct/apsw errors on junk
+        msg = f"{path} is not a readable rosbag2 bag ({type(exc).__name__}: {_one_line(exc)})"
         raise RecordingError(msg) from exc
     return reader
+
+
+def _close(reader: Any) -> None:
+    """Close a reader; a failure to close a corrupt file after reading is logged, not raised over the real error."""
+    try:
+        reader.close()
+    except Exception as exc:  # the reader of a corrupt file may fail again on close
+        log.debug("closing the bag reader failed: %s: %s", type(exc).__name__, exc)
+
+
+def _one_line(exc: BaseException) -> str:
+    """An exception's message on one line (a reader's messages may span several)."""
+    return " ".join(str(exc).split())
 
 
 def bag_topics(path: str | os.PathLike[str]) -> dict[str, str]:
@@ -111,7 +122,7 @@ def bag_topics(path: str | os.PathLike[str]) -> dict[str, str]:
     try:
         return {c.topic: c.msgtype for c in reader.connections}
     finally:
-        reader.close()
+        _close(reader)
 
 
 def _stamp(msg: Any, log_ns: int) -> float:
@@ -155,10 +166,19 @@ def iter_bag_messages(path: str | os.PathLike[str], *, topics: set[str] | None =
             msg = f"{p} has no Imu or MagneticField topic{' among ' + str(sorted(topics)) if topics else ''}; it has {have}"
             raise RecordingError(msg)
         store = _typestore()
-        for conn, log_ns, data in reader.messages(connections=conns):
-            yield _convert(store.deserialize_cdr(data, conn.msgtype), _KIND_OF_TYPE[conn.msgtype], log_ns, conn.topic)
+        messages = reader.messages(connections=conns)
+        while True:
+            try:  # a corrupt storage file fails here (apsw.CorruptError, a zstd error, a CDR error): the reader's fault
+                conn, log_ns, data = next(messages)
+                item = _convert(store.deserialize_cdr(data, conn.msgtype), _KIND_OF_TYPE[conn.msgtype], log_ns, conn.topic)
+            except StopIteration:
+                return
+            except Exception as exc:
+                msg = f"{p}: cannot read messages ({type(exc).__name__}: {_one_line(exc)}); the bag is corrupt or cut short"
+                raise RecordingError(msg) from exc
+            yield item  # outside the try: an error of the consumer is not the bag's
     finally:
-        reader.close()
+        _close(reader)
 
 
 def _pick_connection(path: Path, conns: list[Any], sensor: str | None, topic: str | None) -> Any:
@@ -211,10 +231,10 @@ def read_bag(path: Path, sensor: str | None, topic: str | None, sort: bool) -> R
     except RecordingError:
         raise
     except Exception as exc:
-        msg = f"{path}: cannot read messages ({type(exc).__name__}: {exc})"
+        msg = f"{path}: cannot read messages ({type(exc).__name__}: {_one_line(exc)}); the bag is corrupt or cut short"
         raise RecordingError(msg) from exc
     finally:
-        reader.close()
+        _close(reader)
     if not t:
         msg = f"{path}: topic {conn.topic!r} holds no messages"
         raise RecordingError(msg)

@@ -33,7 +33,7 @@ def guess_sensor(path: Path) -> str:
 
 def read_csv(path: Path, sensor: str | None, sort: bool) -> Recording:
     try:
-        with path.open(newline="", encoding="utf-8") as fh:
+        with path.open(newline="", encoding="utf-8-sig") as fh:  # -sig: a spreadsheet export starts with a BOM
             rows = list(csv.reader(fh))
     except (OSError, UnicodeDecodeError) as exc:
         msg = f"cannot read {path}: {exc}"

@@ -87,7 +87,7 @@ def check_order(t: Array, where: str, sort: bool) -> NDArray[np.intp] | None:
     if not sort:
         msg = (
             f"{where}: time goes backwards at {back.size} place(s), first after sample {int(back[0])} "
-            f"({t[back[0]]!r} -> {t[back[0] + 1]!r}); fix the file or read it with sort=True"
+            f"({float(t[back[0]])!r} -> {float(t[back[0] + 1])!r}); fix the file or read it with sort=True"
         )
         raise RecordingError(msg)
     log.warning("%s: %d backwards time step(s); samples sorted by time", where, back.size)

@@ -80,7 +80,7 @@ def test_yaml_round_trip_keeps_everything(tmp_path: Path, true_cal: Calibration)
     assert back["mag"].stats == cal.stats
     assert back["mag"].parameter_std() == pytest.approx({"b_x": 1e-2, "b_y": np.sqrt(2e-4), "b_z": np.sqrt(3e-4)})
     doc = yaml.safe_load(path.read_text())
-    assert doc["margcal"]["ros__parameters"]["calibration"]["mag"]["format_version"] == 1
+    assert doc["margcal"]["ros__parameters"]["calibration"]["mag"]["format_version"] == 2
     assert all(isinstance(x, float) for x in doc["margcal"]["ros__parameters"]["calibration"]["mag"]["matrix"])
 
 
