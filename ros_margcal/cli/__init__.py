@@ -13,7 +13,7 @@ import sys
 from collections.abc import Sequence
 
 from .. import __version__
-from ..model.errors import MargCalError
+from ..model.errors import MargCalError, one_line
 
 __all__ = ["main"]
 
@@ -25,10 +25,6 @@ def _run_bench(args: argparse.Namespace) -> int:
     module = importlib.import_module(f"ros_margcal.bench.{args.area}")
     return int(module.main(list(args.bench_args)))
 
-
-def _one_line(exc: BaseException) -> str:
-    """The message of ``exc`` on one line (a YAML or reader message may span several)."""
-    return " ".join(str(exc).split()) or type(exc).__name__
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -62,10 +58,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(args.func(args))
     except MargCalError as exc:
-        print(f"margcal {args.command}: error: {_one_line(exc)}", file=sys.stderr)
+        print(f"margcal {args.command}: error: {one_line(exc)}", file=sys.stderr)
         return 2
     except OSError as exc:
-        print(f"margcal {args.command}: error: {_one_line(exc)}", file=sys.stderr)
+        print(f"margcal {args.command}: error: {one_line(exc)}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print(f"margcal {args.command}: interrupted", file=sys.stderr)

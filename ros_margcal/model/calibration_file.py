@@ -35,7 +35,7 @@ import yaml
 from numpy.typing import NDArray
 
 from .calibration import Calibration
-from .errors import CalibrationFileError
+from .errors import CalibrationFileError, one_line
 
 __all__ = ["calibration_from_yaml", "calibration_to_yaml", "load_calibrations", "save_calibrations"]
 
@@ -58,9 +58,6 @@ class _StrictLoader(yaml.SafeLoader):
         return super().compose_node(parent, index)
 
 
-def _one_line(text: str) -> str:
-    return " ".join(str(text).split())
-
 
 def _digest(doc: Any) -> str:
     """SHA-256 of the canonical content: the document as JSON, keys sorted, no spaces."""
@@ -75,7 +72,7 @@ def _load_yaml(text: str, where: str) -> Any:
         msg = f"{where} is nested too deeply to be a calibration file"
         raise CalibrationFileError(msg) from None
     except Exception as exc:  # YAMLError, and ValueError/OverflowError from scalar constructors (dates, big ints)
-        msg = f"{where} is not valid YAML ({_one_line(str(exc))}); delete it or restore a backup"
+        msg = f"{where} is not valid YAML ({one_line(str(exc))}); delete it or restore a backup"
         raise CalibrationFileError(msg) from exc
 
 
@@ -114,7 +111,7 @@ def _check_integrity(text: str, doc: Any, block: dict[Any, Any], where: str) -> 
         try:
             actual = _digest(doc)
         except (TypeError, ValueError, RecursionError) as exc:  # keys or values JSON cannot hold: not ours
-            msg = f"{where}: its content cannot be checked against its checksum ({_one_line(str(exc))})"
+            msg = f"{where}: its content cannot be checked against its checksum ({one_line(str(exc))})"
             raise CalibrationFileError(msg) from None
         if actual != sums[0]:
             msg = (f"{where}: checksum mismatch: the file was cut short or changed after it was written; restore a "
@@ -135,7 +132,7 @@ def _parse(text: str, where: str) -> dict[str, Calibration]:
         try:
             cals[str(key)] = Calibration.from_dict(entry)
         except CalibrationFileError as exc:
-            msg = f"{where}: sensor {str(key)!r}: {_one_line(str(exc))}"
+            msg = f"{where}: sensor {str(key)!r}: {one_line(str(exc))}"
             raise CalibrationFileError(msg) from exc
     return cals
 
@@ -215,7 +212,7 @@ def _read_text(p: Path, where: str) -> str:
     try:
         fd = os.open(p, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0))
     except (OSError, ValueError) as exc:  # ValueError: a NUL in the path
-        msg = f"cannot read calibration file {where}: {_one_line(str(exc))}"
+        msg = f"cannot read calibration file {where}: {one_line(str(exc))}"
         raise CalibrationFileError(msg) from exc
     info = os.fstat(fd)
     if not stat.S_ISREG(info.st_mode) or info.st_size > MAX_BYTES:
@@ -227,7 +224,7 @@ def _read_text(p: Path, where: str) -> str:
         try:
             data = fh.read(MAX_BYTES + 1)
         except OSError as exc:
-            msg = f"cannot read calibration file {where}: {_one_line(str(exc))}"
+            msg = f"cannot read calibration file {where}: {one_line(str(exc))}"
             raise CalibrationFileError(msg) from exc
     if len(data) > MAX_BYTES:
         msg = f"cannot read calibration file {where}: more than {MAX_BYTES} bytes"

@@ -11,8 +11,7 @@ from numpy.typing import ArrayLike, NDArray
 
 __all__ = [
     "CalibrationFileError", "ConfigError", "ConvergenceError", "DegenerateDataError", "InputError", "MargCalError",
-    "RecordingError", "as_points", "as_vector3"
-]
+    "RecordingError", "as_points", "as_vector3", "one_line"]
 
 
 class MargCalError(ValueError):
@@ -79,3 +78,9 @@ def as_vector3(x: ArrayLike, name: str = "vector") -> NDArray[np.float64]:
         msg = f"{name} must be finite, got {arr.tolist()}"
         raise InputError(msg)
     return arr
+
+
+def one_line(message: object) -> str:
+    """``message`` (an exception or text) on one line: readers and YAML errors may span several."""
+    text = " ".join(str(message).split())
+    return text or (type(message).__name__ if isinstance(message, BaseException) else "")

@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ..model.errors import RecordingError
+from ..model.errors import RecordingError, one_line
 from .recording import Recording, check_order
 
 __all__ = ["BAG_SUFFIXES", "FRAME_ID", "BagMessage", "bag_topics", "iter_bag_messages", "write_bag"]
@@ -98,7 +98,7 @@ def _open_reader(path: Path) -> Any:
         reader = Reader(path)
         reader.open()
     except Exception as exc:  # rosbags raises ReaderError, but also KeyError/struct/apsw errors on junk
-        msg = f"{path} is not a readable rosbag2 bag ({type(exc).__name__}: {_one_line(exc)})"
+        msg = f"{path} is not a readable rosbag2 bag ({type(exc).__name__}: {one_line(exc)})"
         raise RecordingError(msg) from exc
     return reader
 
@@ -110,10 +110,6 @@ def _close(reader: Any) -> None:
     except Exception as exc:  # the reader of a corrupt file may fail again on close
         log.debug("closing the bag reader failed: %s: %s", type(exc).__name__, exc)
 
-
-def _one_line(exc: BaseException) -> str:
-    """An exception's message on one line (a reader's messages may span several)."""
-    return " ".join(str(exc).split())
 
 
 def bag_topics(path: str | os.PathLike[str]) -> dict[str, str]:
@@ -174,7 +170,7 @@ def iter_bag_messages(path: str | os.PathLike[str], *, topics: set[str] | None =
             except StopIteration:
                 return
             except Exception as exc:
-                msg = f"{p}: cannot read messages ({type(exc).__name__}: {_one_line(exc)}); the bag is corrupt or cut short"
+                msg = f"{p}: cannot read messages ({type(exc).__name__}: {one_line(exc)}); the bag is corrupt or cut short"
                 raise RecordingError(msg) from exc
             yield item  # outside the try: an error of the consumer is not the bag's
     finally:
@@ -231,7 +227,7 @@ def read_bag(path: Path, sensor: str | None, topic: str | None, sort: bool) -> R
     except RecordingError:
         raise
     except Exception as exc:
-        msg = f"{path}: cannot read messages ({type(exc).__name__}: {_one_line(exc)}); the bag is corrupt or cut short"
+        msg = f"{path}: cannot read messages ({type(exc).__name__}: {one_line(exc)}); the bag is corrupt or cut short"
         raise RecordingError(msg) from exc
     finally:
         _close(reader)

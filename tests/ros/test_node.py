@@ -205,7 +205,7 @@ def test_corrupt_file_starts_uncalibrated(context: Context, classes: MessageClas
     """A newer-format file is refused; the node runs, uncalibrated, and publishes no calibration."""
     path = tmp_path / "cal.yaml"
     save_calibrations(path, {"mag": Calibration.identity(50e-6, sensor="mag")})
-    path.write_text(path.read_text().replace("format_version: 1", "format_version: 99"))
+    path.write_text(path.read_text().replace("format_version: 2", "format_version: 99"))
     h = Harness(context, classes, path)
     try:
         h.spin_until(lambda: False, 0.5)
