@@ -60,15 +60,10 @@ HOSTILE: list[object] = [
 
 
 @pytest.fixture(scope="module")
-def mag_truth() -> Calibration:
-    """A true magnetometer (tesla) with a large hard iron."""
-    return sim.random_sensor(np.random.default_rng(11), "mag")
-
-
-@pytest.fixture(scope="module")
-def tumbling_mag(mag_truth: Calibration) -> sim.Recording:
-    """60 s of a tumbling magnetometer at 50 Hz."""
-    return sim.magnetometer_stream(mag_truth, 60.0, 50.0, np.random.default_rng(12), motion="tumble")
+def tumbling_mag() -> sim.Recording:
+    """60 s of a tumbling magnetometer at 50 Hz; its true sensor (``.truth``) has a large hard iron."""
+    truth = sim.random_sensor(np.random.default_rng(11), "mag")
+    return sim.magnetometer_stream(truth, 60.0, 50.0, np.random.default_rng(12), motion="tumble")
 
 
 @pytest.fixture(scope="module")
@@ -157,20 +152,19 @@ def test_a_lone_stamp_glitch_is_dropped_once(tumbling_mag: sim.Recording, jump: 
     assert "restarted" not in cal.status().message
 
 
-def test_a_first_sample_from_the_future_does_not_block_the_stream(mag_truth: Calibration,
-                                                                  tumbling_mag: sim.Recording) -> None:
+def test_a_first_sample_from_the_future_does_not_block_the_stream(tumbling_mag: sim.Recording) -> None:
     """The very first sample 1e9 s ahead: the good stream behind it becomes the time base and calibrates."""
     rec = tumbling_mag
     cal = SensorCalibrator("mag")
     cal.push(1e9, rec.raw[0])
     _feed(cal, rec.t, rec.raw)
     assert cal.calibration is not None
-    assert np.linalg.norm(cal.calibration.offset - mag_truth.offset) < 0.02 * mag_truth.norm
+    assert np.linalg.norm(cal.calibration.offset - tumbling_mag.truth.offset) < 0.02 * tumbling_mag.truth.norm
     assert cal.status().time_base_resets == 1
     assert cal.dropped["backwards_stamp"] == cal.config.new_time_base_after - 1
 
 
-def test_a_restarted_clock_is_a_new_time_base(mag_truth: Calibration, tumbling_mag: sim.Recording) -> None:
+def test_a_restarted_clock_is_a_new_time_base(tumbling_mag: sim.Recording) -> None:
     """A driver restart: 15 s stamped around 1000 s, then the stamps start again at 0 and never reach
     1000 s. All of it was backwards_stamp; now it is a new time base, said in the status, and calibrates."""
     rec = tumbling_mag
@@ -182,7 +176,7 @@ def test_a_restarted_clock_is_a_new_time_base(mag_truth: Calibration, tumbling_m
     base = [e for e in events if e.kind is EventKind.TIME_BASE]
     assert len(base) == 1 and "new time base" in base[0].message
     assert cal.calibration is not None
-    assert np.linalg.norm(cal.calibration.offset - mag_truth.offset) < 0.02 * mag_truth.norm
+    assert np.linalg.norm(cal.calibration.offset - tumbling_mag.truth.offset) < 0.02 * tumbling_mag.truth.norm
     assert not any(e.kind is EventKind.CHANGED for e in events)
     st_ = cal.status()
     assert st_.time_base_resets == 1 and "stamps restarted 1x" in st_.message
@@ -190,7 +184,7 @@ def test_a_restarted_clock_is_a_new_time_base(mag_truth: Calibration, tumbling_m
     assert _accounted(cal)
 
 
-def test_a_bag_replayed_in_a_loop_keeps_calibrating(mag_truth: Calibration, tumbling_mag: sim.Recording) -> None:
+def test_a_bag_replayed_in_a_loop_keeps_calibrating(tumbling_mag: sim.Recording) -> None:
     """Three loops of one bag: each restart is a new time base; the refits go on in every loop and the
     calibration stays right, its age counted on the new time base (as if the loops were one stream)."""
     rec = tumbling_mag
@@ -203,7 +197,7 @@ def test_a_bag_replayed_in_a_loop_keeps_calibrating(mag_truth: Calibration, tumb
     assert cal.status().time_base_resets == 2
     assert not any(e.kind is EventKind.CHANGED for e in events)
     assert cal.calibration is not None and cal.state is State.CALIBRATED
-    assert np.linalg.norm(cal.calibration.offset - mag_truth.offset) < 0.02 * mag_truth.norm
+    assert np.linalg.norm(cal.calibration.offset - tumbling_mag.truth.offset) < 0.02 * tumbling_mag.truth.norm
     assert 0.0 < cal.status().age < 120.0
 
 
@@ -264,11 +258,11 @@ def test_a_stream_of_drops_says_so_in_the_status() -> None:
 # -- item 4: every sample counted once -------------------------------------------------------------
 
 
-def test_outliers_are_counted_once(mag_truth: Calibration, tumbling_mag: sim.Recording) -> None:
+def test_outliers_are_counted_once(tumbling_mag: sim.Recording) -> None:
     """Outliers (field disturbances after calibration) are dropped, not also passed: seen == passed + dropped."""
     cal = SensorCalibrator("mag")
     _feed(cal, tumbling_mag.t, tumbling_mag.raw)
-    noisy = sim.magnetometer_stream(mag_truth, 60.0, 50.0, np.random.default_rng(61), motion="tumble",
+    noisy = sim.magnetometer_stream(tumbling_mag.truth, 60.0, 50.0, np.random.default_rng(61), motion="tumble",
                                     effects={"disturbance": 0.5})
     _feed(cal, noisy.t + tumbling_mag.t[-1] + 0.02, noisy.raw)
     assert cal.dropped["outlier"] > 0
@@ -334,11 +328,11 @@ def test_push_never_raises_and_counts_every_sample_once(sensor: str, pushes: lis
 
 
 @pytest.mark.parametrize("sensor", ["mag", "accel"])
-def test_calibrates_on_good_data_after_garbage(sensor: str, mag_truth: Calibration, tumbling_mag: sim.Recording,
+def test_calibrates_on_good_data_after_garbage(sensor: str, tumbling_mag: sim.Recording,
                                                tumbling_imu: tuple[Calibration, sim.Recording]) -> None:
     """Garbage first (hostile objects, a far-future and a far-past good sample, a burst, a broken gyro),
     then a good stream with stamps from 0: the calibrator is not stuck, it calibrates."""
-    truth, rec = (mag_truth, tumbling_mag) if sensor == "mag" else tumbling_imu
+    truth, rec = (tumbling_mag.truth, tumbling_mag) if sensor == "mag" else tumbling_imu
     cal = SensorCalibrator(sensor)
     v = rec.raw[0]
     for k, obj in enumerate(HOSTILE):
