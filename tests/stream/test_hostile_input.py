@@ -16,6 +16,7 @@ from hypothesis.extra import numpy as hnp
 from ros_margcal.model.calibration import Calibration
 from ros_margcal.sim import simulation as sim
 from ros_margcal.stream.calibrator import SensorCalibrator
+from ros_margcal.stream.config import PipelineConfig
 from ros_margcal.stream.intake import MAX_GYRO_RAD_S
 from ros_margcal.stream.status import EventKind, State
 from ros_margcal.validation.shipped import FallbackValidator
@@ -180,6 +181,7 @@ def test_a_restarted_clock_is_a_new_time_base(tumbling_mag: sim.Recording) -> No
     assert not any(e.kind is EventKind.CHANGED for e in events)
     st_ = cal.status()
     assert st_.time_base_resets == 1 and "stamps restarted 1x" in st_.message
+    assert dict(st_.values())["time_base_resets"] == "1" and st_.to_dict()["time_base_resets"] == 1
     assert cal.dropped["backwards_stamp"] == cal.config.new_time_base_after - 1
     assert _accounted(cal)
 
@@ -228,6 +230,18 @@ def test_an_imu_restart_resets_the_gate_and_calibrates(tumbling_imu: tuple[Calib
     assert np.linalg.norm(cal.calibration.offset - truth.offset) < 0.01 * truth.norm
     assert cal.status().time_base_resets == 1
     assert _accounted(cal)
+
+
+def test_reconfigure_reaches_the_intake() -> None:
+    """New options apply to the input checks at once (a lower max_rate_hz makes bursts of what passed)."""
+    cal = SensorCalibrator("mag", validator=FallbackValidator())
+    v = [3e-5, 1e-5, -2e-5]
+    for k in range(10):
+        cal.push(0.01 * k, v)
+    cal.reconfigure(PipelineConfig.for_sensor("mag", max_rate_hz=10.0))
+    for k in range(10, 20):
+        cal.push(0.01 * k, v)
+    assert cal.passed == 11 and cal.dropped["burst"] == 9
 
 
 # -- item 3: a broken gyro -------------------------------------------------------------------------
