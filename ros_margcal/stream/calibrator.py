@@ -3,9 +3,14 @@
 ``SensorCalibrator.push(t, xyz, gyro=None)`` is the whole online flow of DESIGN.md for one
 magnetometer or accelerometer, in pure Python (no rclpy):
 
-1. *Input sanity.* NaN/Inf, wrong sizes, zero vectors, absurd magnitudes, repeated or backwards
-   stamps and bursts faster than ``max_rate_hz`` are dropped and counted per reason; ``push``
-   never raises for a bad sample.
+1. *Input sanity* (``intake.Intake``). Anything but three real numbers, NaN/Inf (also ints beyond
+   the float range), zero vectors, absurd magnitudes, repeated or backwards stamps, stamp jumps and
+   bursts faster than ``max_rate_hz`` are dropped and counted per reason; ``push`` never raises,
+   whatever the objects. A lone stamp glitch is dropped once; a clock that restarts (a bag replayed
+   in a loop, a driver restart: ``new_time_base_after`` consistent samples off the time base) starts
+   a new time base: the stored times are moved onto it, the gate is emptied, the buffer and the
+   calibration are kept, an ``EventKind.TIME_BASE`` event and the status say so. A gyro that is
+   malformed, not finite or beyond ``intake.MAX_GYRO_RAD_S`` is ignored for that sample.
 2. *Gate.* Accelerometer samples go through ``gate.InactivityGate`` (Gietzelt et al. 2013, §2.4:
    coefficient of variation of the norm over a 2 s window below 3e-3) and only its averaged still
    samples go on; magnetometer samples go straight on.
@@ -34,6 +39,12 @@ magnetometer or accelerometer, in pure Python (no rclpy):
 The state is one of ``State`` (collecting, ready, calibrated, rejected); ``status()`` returns a
 ``Status`` with everything ``/calib/status`` shows, its ``level`` an ``IntEnum`` (the node turns it
 into the bytes rclpy wants).
+
+Counting: every pushed sample is counted once, ``seen == passed + sum(dropped.values())``. ``dropped``
+holds the intake's reasons and ``outlier`` (while calibrated, a sample too far from the calibration;
+for the accelerometer, the sample whose push made the gate emit an outlying still mean); ``passed``
+holds the rest: handed to the buffer stage (magnetometer) or to the gate (accelerometer, where most
+samples end inside a window mean; ``kept`` counts what the buffer took).
 """
 
 from __future__ import annotations
@@ -54,16 +65,15 @@ from ..model.errors import ConfigError, MargCalError
 from ..model.fitting import fit
 from ..validation.shipped import default_validator
 from .config import PipelineConfig, guard_rails
+from .intake import DROP_REASONS, Intake
 from .status import Event, EventKind, Level, State, Status, pct
 
-__all__ = ["Event", "EventKind", "Level", "PipelineConfig", "SensorCalibrator", "State", "Status", "default_validator"]
+__all__ = ["DROP_REASONS", "Event", "EventKind", "Level", "PipelineConfig", "SensorCalibrator", "State", "Status",
+           "default_validator"]
 
 log = logging.getLogger(__name__)
 
 Array = NDArray[np.float64]
-
-
-DROP_REASONS = ("wrong_size", "nonfinite", "zero", "magnitude", "repeated_stamp", "backwards_stamp", "burst", "outlier")
 
 
 class SensorCalibrator:
@@ -108,18 +118,16 @@ class SensorCalibrator:
         self._buffer = DirectionBuffer(n_bins=cfg.n_bins, per_bin=cfg.per_bin)
         self._gate: Any = None
         if self.sensor == "accel":
-
             self._gate = InactivityGate(window_s=cfg.gate_window_s, cv_threshold=cfg.gate_cv_threshold,
                                         gyro_threshold=cfg.gate_gyro_threshold)
         self._recent_t: deque[float] = deque(maxlen=cfg.recent_samples)
         self._recent_v: deque[tuple[float, float, float]] = deque(maxlen=cfg.recent_samples)
         self._recent_r: deque[float] = deque(maxlen=cfg.recent_samples)
-        self.dropped = dict.fromkeys(DROP_REASONS, 0)
-        self.seen = 0
+        self._intake = Intake(cfg, use_gyro=self._gate is not None)
+        self.dropped = self._intake.dropped  # the intake's reasons and "outlier", one dict
         self.passed = 0
         self.kept = 0
-        self._last_t: float | None = None
-        self._last_accepted_t = -math.inf
+        self._time_base_note = ""
         self._since_eval = 0
         self._last_eval_t = -math.inf
         self._t = 0.0
@@ -145,6 +153,7 @@ class SensorCalibrator:
         rebuild = any(getattr(config, k) != getattr(self.config, k) for k in
                       ("n_bins", "per_bin", "recent_samples", "gate_window_s", "gate_cv_threshold", "gate_gyro_threshold"))
         self.config = config
+        self._intake.config = config
         if rebuild:
             self.reset(keep_calibration=True)
 
@@ -155,6 +164,11 @@ class SensorCalibrator:
             self._state = State.COLLECTING
         else:
             self._install(cal)
+
+    @property
+    def seen(self) -> int:
+        """Samples pushed since the last reset (``passed + sum(dropped.values())``)."""
+        return self._intake.seen
 
     @property
     def calibration(self) -> Calibration | None:
@@ -197,56 +211,48 @@ class SensorCalibrator:
     def push(self, t: float, xyz: ArrayLike, gyro: ArrayLike | None = None) -> list[Event]:
         """Feed one raw sample at message time ``t`` (seconds); returns what happened (often nothing).
 
-        Never raises for bad input: such samples are dropped and counted in ``dropped``.
+        Never raises, whatever ``t``, ``xyz`` and ``gyro`` are: bad samples are dropped and counted in
+        ``dropped`` (see ``intake`` for the rules, the module docstring for the counting).
         """
-        self.seen += 1
-        drop = self.dropped
-        try:
-            x, y, z = (float(v) for v in np.asarray(xyz, dtype=np.float64).reshape(3))
-            t = float(t)
-        except (TypeError, ValueError):
-            drop["wrong_size"] += 1
+        intake = self._intake
+        got = intake.take(t, xyz, gyro)
+        if got is None:
             return []
-        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z) and math.isfinite(t)):
-            drop["nonfinite"] += 1
-            return []
-        mag = math.sqrt(x * x + y * y + z * z)
-        cfg = self.config
-        if mag <= cfg.min_magnitude:
-            drop["zero"] += 1
-            return []
-        if mag > cfg.max_magnitude:
-            drop["magnitude"] += 1
-            return []
-        last = self._last_t
-        if last is not None:
-            if t == last:
-                drop["repeated_stamp"] += 1
-                return []
-            if t < last:
-                drop["backwards_stamp"] += 1
-                return []
-        self._last_t = t
-        if t - self._last_accepted_t < cfg.min_period_s:
-            drop["burst"] += 1
-            return []
-        self._last_accepted_t = t
+        t, (x, y, z), g = got
+        events = [] if intake.new_base_step is None else self._new_time_base(t, intake.new_base_step)
         self._t = t
-        self.passed += 1
         if self._gate is not None:
-            g = None
-            if gyro is not None:
-                try:
-                    g = np.asarray(gyro, dtype=np.float64).reshape(3)
-                    if not np.isfinite(g).all():
-                        g = None
-                except (TypeError, ValueError):
-                    g = None
             out = self._gate.push(t, (x, y, z), g)
             if out is None:
-                return []
-            x, y, z = (float(v) for v in np.asarray(out, dtype=np.float64).reshape(3))
-        return self._accept(t, x, y, z)
+                self.passed += 1  # handed to the gate, which keeps it inside a window (or finds motion)
+                return events
+            x, y, z = (float(v) for v in out.tolist())
+        return events + self._accept(t, x, y, z)
+
+    def _new_time_base(self, t: float, step: float) -> list[Event]:
+        """The stamps restarted (``intake``): move the stored times onto the new time base, empty the gate.
+
+        The old time base's last sample is put one ``min_period_s`` before ``t``, so the recent-sample
+        windows, the change detector and the refit cadence see one continuous stream; the buffer (its
+        bins compare stamps by their distance) and the calibration are kept.
+        """
+        shift = step - self.config.min_period_s
+        self._recent_t = deque((s + shift for s in self._recent_t), maxlen=self._recent_t.maxlen)
+        if self._suspect_since is not None:
+            self._suspect_since += shift
+        if self._change_onset is not None:
+            self._change_onset += shift
+        self._last_eval_t += shift
+        if self._cal is not None:
+            self._cal = self._cal.replace(stamp=self._cal.stamp + shift)
+        if self._gate is not None:
+            self._gate.reset()
+        n = self._intake.time_base_resets
+        self._time_base_note = f"stamps restarted {n}x, last at t={t:.2f} s (a {step:+.6g} s jump)"
+        msg = (f"new time base: stamps jumped {step:+.6g} s to t={t:.3f} s and went on "
+               f"({self.config.new_time_base_after} consistent samples); the calibration and buffer are kept")
+        log.warning("%s: %s", self.sensor, msg)
+        return [Event(EventKind.TIME_BASE, t, self.sensor, msg)]
 
     def _accept(self, t: float, x: float, y: float, z: float) -> list[Event]:
         events: list[Event] = []
@@ -261,6 +267,7 @@ class SensorCalibrator:
             if not self._changed and r > cfg.outlier_threshold:
                 self.dropped["outlier"] += 1
                 return events
+        self.passed += 1
         if self._buffer.push(t, (x, y, z)):
             self.kept += 1
         self._since_eval += 1
@@ -464,8 +471,15 @@ class SensorCalibrator:
             elif self._predicted is not None:
                 msg = (f"collecting: {pct(self.coverage)} coverage, "
                        f"predicted error {pct(self._predicted)} > {pct(self.threshold)}")
+            elif self.passed == 0 and self.seen:
+                worst = max(self.dropped, key=lambda k: self.dropped[k])
+                msg = f"collecting: every sample dropped so far ({self.dropped[worst]} x {worst})"
+            elif self.kept == 0 and self._gate is not None:
+                msg = "collecting: no still sample from the inactivity gate yet (hold the sensor still in a few poses)"
             else:
                 msg = f"collecting: {self._last_reason}"
+        if self._time_base_note:
+            msg += f"; {self._time_base_note}"
         ind = self._indicators
         ind_d: dict[str, float] = {}
         if ind is not None:
@@ -482,5 +496,6 @@ class SensorCalibrator:
             matrix=None if cal is None else tuple(cal.matrix.reshape(-1).tolist()),
             norm=None if cal is None else cal.norm, age=None if cal is None else max(0.0, t - cal.stamp),
             fits_accepted=self.fits_accepted, fits_rejected=self.fits_rejected,
-            last_rejection=self._last_rejection, changes_detected=self.changes,
+            last_rejection=self._last_rejection, changes_detected=self.changes, samples_passed=self.passed,
+            time_base_resets=self._intake.time_base_resets, gyro_ignored=self._intake.gyro_ignored,
         )

@@ -23,7 +23,8 @@ offset limit, diagonal/off-diagonal limits, field strength check), restated for 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+import numbers
+from dataclasses import dataclass, fields, replace
 from typing import Any
 
 import numpy as np
@@ -31,8 +32,9 @@ from numpy.typing import NDArray
 
 from ..model.calibration import MODELS, Calibration
 from ..model.errors import ConfigError
+from ..model.fitting import LOSSES, METHODS, SUPPORTED
 
-__all__ = ["ACCEL_UNITS", "GRAVITY", "MAG_UNITS", "PipelineConfig", "guard_rails"]
+__all__ = ["ACCEL_UNITS", "FIELD_SPECS", "GRAVITY", "MAG_UNITS", "FieldSpec", "PipelineConfig", "guard_rails"]
 
 GRAVITY = 9.80665
 """Standard gravity, m/s²."""
@@ -53,6 +55,7 @@ class PipelineConfig:
 
     Magnitudes (``min_magnitude``, ``max_magnitude``, ``norm_min``, ``norm_max``, ``reference_norm``)
     are in ``unit``; ratios (``max_residual``, thresholds) are fractions of the field norm.
+    ``checked`` holds every field to its ``FIELD_SPECS`` entry (type, range, memory bound).
     """
 
     sensor: str = "mag"
@@ -68,6 +71,8 @@ class PipelineConfig:
     min_magnitude: float = 1e-9
     max_magnitude: float = 1.4e-3
     max_rate_hz: float = 2000.0
+    max_stamp_gap_s: float = 60.0  # a forward stamp step beyond this is a jump: a glitch, or a new time base
+    new_time_base_after: int = 5  # consecutive consistent samples off the current time base that make a new one
     # buffer and validator
     n_bins: int = 100
     per_bin: int = 10
@@ -104,6 +109,8 @@ class PipelineConfig:
     @classmethod
     def for_sensor(cls, sensor: str, unit: str | None = None, **overrides: Any) -> PipelineConfig:
         """Defaults for ``"mag"`` (raw unit tesla unless given) or ``"accel"`` (m/s² unless given)."""
+        if unit is not None and not isinstance(unit, str):
+            raise ConfigError(f"unit must be a string, got {unit!r}")
         if sensor == "mag":
             u = unit or "T"
             if u not in MAG_UNITS:
@@ -125,36 +132,143 @@ class PipelineConfig:
         else:
             msg = f"sensor must be 'mag' or 'accel', got {sensor!r}"
             raise ConfigError(msg)
+        unknown = sorted(set(overrides) - {f.name for f in fields(cls)})
+        if unknown:
+            raise ConfigError(f"unknown options {unknown}")
         return replace(base, **overrides).checked() if overrides else base.checked()
 
     def checked(self) -> PipelineConfig:
-        """Return self after checking every option; ConfigError names the bad one."""
-        if self.model not in MODELS:
-            raise ConfigError(f"model must be one of {MODELS}, got {self.model!r}")
-        positive = ("max_parameter_std", "max_rate_hz", "max_residual", "max_offset_ratio", "gain_max", "change_threshold",
-                    "outlier_threshold", "gate_window_s", "gate_cv_threshold", "max_magnitude")
-        for name in positive:
-            v = getattr(self, name)
-            if not (isinstance(v, int | float) and v > 0 and not math.isnan(v)):
-                raise ConfigError(f"{name} must be > 0, got {v!r}")
-        for name in ("max_iter", "n_bins", "per_bin", "min_points", "refit_every", "recent_samples", "change_window"):
-            if int(getattr(self, name)) < 1:
-                raise ConfigError(f"{name} must be >= 1, got {getattr(self, name)!r}")
-        if not 0 < self.gain_min <= 1.0 <= self.gain_max:
+        """Return self after checking every option against ``FIELD_SPECS``; ConfigError names the bad one.
+
+        Each field has a type (bools are not numbers, strings are not numbers), a finite range and,
+        where it sizes a buffer, a memory bound; then the options that depend on each other.
+        """
+        for name, spec in FIELD_SPECS.items():
+            spec.check(name, getattr(self, name))
+        if self.model not in SUPPORTED[self.method]:
+            raise ConfigError(f"method {self.method!r} cannot fit model {self.model!r}; it supports {SUPPORTED[self.method]}")
+        if self.loss != "linear" and self.method != "lm":
+            raise ConfigError(f"loss {self.loss!r} needs method 'lm', got method {self.method!r}")
+        if not self.gain_min <= 1.0 <= self.gain_max:
             raise ConfigError(f"need 0 < gain_min <= 1 <= gain_max, got {self.gain_min}, {self.gain_max}")
-        if not 0 <= self.norm_min < self.norm_max:
+        if not self.norm_min < self.norm_max:
             raise ConfigError(f"need 0 <= norm_min < norm_max, got {self.norm_min}, {self.norm_max}")
-        if self.min_magnitude < 0 or self.min_magnitude >= self.max_magnitude:
+        if not self.min_magnitude < self.max_magnitude:
             raise ConfigError(f"need 0 <= min_magnitude < max_magnitude, got {self.min_magnitude}, {self.max_magnitude}")
         if self.change_window > self.recent_samples:
             raise ConfigError(f"change_window ({self.change_window}) must not exceed recent_samples ({self.recent_samples})")
-        if not self.change_min_duration_s >= 0:
-            raise ConfigError(f"change_min_duration_s must be >= 0, got {self.change_min_duration_s}")
-        if self.not_worse_tolerance < 0:
-            raise ConfigError(f"not_worse_tolerance must be >= 0, got {self.not_worse_tolerance}")
-        if self.reference_norm is not None and not self.reference_norm > 0:
-            raise ConfigError(f"reference_norm must be > 0 or None, got {self.reference_norm}")
+        capacity = self.n_bins * self.per_bin
+        if capacity > MAX_BUFFERED:
+            raise ConfigError(f"n_bins x per_bin ({self.n_bins} x {self.per_bin} = {capacity}) must not exceed "
+                              f"{MAX_BUFFERED} buffered samples (memory)")
+        if self.min_points > capacity:
+            raise ConfigError(f"min_points ({self.min_points}) must not exceed the buffer, n_bins x per_bin = {capacity}")
+        if self.gate_window_s * self.max_rate_hz > MAX_GATE_WINDOW:
+            raise ConfigError(f"gate_window_s x max_rate_hz ({self.gate_window_s:g} s x {self.max_rate_hz:g} Hz) must not "
+                              f"exceed {MAX_GATE_WINDOW} samples in the gate window (memory)")
         return self
+
+
+MAX_BUFFERED = 100_000
+"""Most samples the direction buffer may hold (``n_bins * per_bin``): a few tens of MB and a fit of bounded cost."""
+MAX_GATE_WINDOW = 1_000_000
+"""Most samples the inactivity gate's window may hold (``gate_window_s * max_rate_hz``)."""
+_MAGNITUDE_MAX = 1e12
+"""Upper bound of every magnitude option, in any unit (nT, mg, counts all stay far below)."""
+_DAY_S = 86400.0
+_RATIO_MIN = 1e-6
+_MAGNITUDE_MIN = 1e-12
+
+
+@dataclass(frozen=True)
+class FieldSpec:
+    """Type and range of one ``PipelineConfig`` field.
+
+    ``kind`` is ``float`` (an int or float, never a bool or a string), ``int`` (a Python int, never a
+    bool) or ``str``; numbers must lie in ``[lo, hi]`` (``(lo, hi]`` when ``open_lo``), NaN never does;
+    ``none_ok`` admits None, ``inf_ok`` admits +inf (an "off" value), ``choices`` lists the admitted strings.
+    """
+
+    kind: type
+    lo: float = 0.0
+    hi: float = 0.0
+    open_lo: bool = False
+    none_ok: bool = False
+    inf_ok: bool = False
+    choices: tuple[str, ...] | None = None
+
+    def check(self, name: str, value: Any) -> None:
+        """Raise ConfigError naming ``name`` unless ``value`` fits this spec."""
+        if value is None:
+            if self.none_ok:
+                return
+            raise ConfigError(f"{name} must not be None")
+        if self.kind is str:
+            if not isinstance(value, str):
+                raise ConfigError(f"{name} must be a string, got {value!r}")
+            if self.choices is not None and value not in self.choices:
+                raise ConfigError(f"{name} must be one of {self.choices}, got {value!r}")
+            if not 0 < len(value) <= 64:
+                raise ConfigError(f"{name} must be a non-empty string of at most 64 characters, got {value!r}")
+            return
+        if isinstance(value, bool) or not isinstance(value, int if self.kind is int else numbers.Real):
+            raise ConfigError(f"{name} must be {'an int' if self.kind is int else 'a number'}, got {value!r}")
+        if self.inf_ok and value == math.inf:
+            return
+        low_ok = value > self.lo if self.open_lo else value >= self.lo
+        if not (low_ok and value <= self.hi):  # False for NaN; big ints compare exactly
+            raise ConfigError(f"{name} must be in {'(' if self.open_lo else '['}{self.lo:g}, {self.hi:g}]"
+                              f"{' or inf' if self.inf_ok else ''}, got {value!r}")
+
+
+def _real(lo: float, hi: float, *, open_lo: bool = False, none_ok: bool = False, inf_ok: bool = False) -> FieldSpec:
+    return FieldSpec(float, lo, hi, open_lo=open_lo, none_ok=none_ok, inf_ok=inf_ok)
+
+
+def _ratio(hi: float, *, none_ok: bool = False) -> FieldSpec:
+    """A fraction or factor: at least ``_RATIO_MIN`` (a zero or a denormal would switch a check off or on for good)."""
+    return FieldSpec(float, _RATIO_MIN, hi, none_ok=none_ok)
+
+
+FIELD_SPECS: dict[str, FieldSpec] = {
+    "sensor": FieldSpec(str, choices=("mag", "accel")),
+    "unit": FieldSpec(str),  # an unknown unit only turns the field-strength check off (``for_sensor``)
+    "model": FieldSpec(str, choices=MODELS),
+    "method": FieldSpec(str, choices=METHODS),
+    "loss": FieldSpec(str, choices=LOSSES),
+    "f_scale_rel": _ratio(10.0, none_ok=True),
+    "reference_norm": _real(_MAGNITUDE_MIN, _MAGNITUDE_MAX, none_ok=True),
+    "max_iter": FieldSpec(int, 1, 100_000),
+    "min_magnitude": _real(0.0, _MAGNITUDE_MAX),
+    "max_magnitude": _real(_MAGNITUDE_MIN, _MAGNITUDE_MAX),
+    "max_rate_hz": _real(1e-3, 1e6),
+    "n_bins": FieldSpec(int, 6, 10_000),
+    "per_bin": FieldSpec(int, 1, 1_000),
+    "min_points": FieldSpec(int, 4, MAX_BUFFERED),
+    "max_predicted_error": _ratio(1.0, none_ok=True),
+    "refit_every": FieldSpec(int, 1, 100_000),
+    "refit_min_interval_s": _real(0.0, _DAY_S),
+    "recheck_interval_s": _real(0.0, _DAY_S),
+    "max_residual": _ratio(1.0),
+    "max_offset_ratio": _ratio(100.0),
+    "gain_min": _real(1e-3, 1.0),
+    "gain_max": _real(1.0, 100.0),
+    "norm_min": _real(0.0, _MAGNITUDE_MAX),
+    "norm_max": _real(0.0, _MAGNITUDE_MAX, open_lo=True, inf_ok=True),  # inf: no field-strength check
+    "not_worse_tolerance": _real(0.0, 10.0),
+    "max_parameter_std": _ratio(10.0),
+    "recent_samples": FieldSpec(int, 4, 100_000),
+    "change_window": FieldSpec(int, 1, 100_000),
+    "change_threshold": _ratio(10.0),
+    "change_min_duration_s": _real(0.0, _DAY_S),
+    "outlier_threshold": _ratio(100.0),
+    "gate_window_s": _real(1e-3, 600.0),
+    "gate_cv_threshold": _ratio(1.0),
+    "gate_gyro_threshold": _ratio(100.0, none_ok=True),
+    "max_stamp_gap_s": _real(1e-3, _DAY_S),
+    "new_time_base_after": FieldSpec(int, 2, 1_000),
+}
+"""The type and range of every ``PipelineConfig`` field (``checked`` refuses a field missing here)."""
 
 
 def _rms_rel(cal: Calibration, pts: NDArray[np.float64]) -> float:

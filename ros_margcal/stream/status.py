@@ -41,6 +41,7 @@ class EventKind(str, Enum):
     CALIBRATED = "calibrated"  # a new calibration passed the guard rails and is now current
     REJECTED = "rejected"      # a fit was refused; ``message`` says why
     CHANGED = "changed"        # the current calibration no longer fits new samples
+    TIME_BASE = "time_base"    # the stamps restarted (a bag loop, a driver restart): a new time base
 
 
 @dataclass(frozen=True)
@@ -81,6 +82,9 @@ class Status:
     fits_rejected: int = 0
     last_rejection: str = ""
     changes_detected: int = 0
+    samples_passed: int = 0  # samples_seen == samples_passed + samples_rejected
+    time_base_resets: int = 0
+    gyro_ignored: int = 0
 
     @property
     def name(self) -> str:
@@ -117,6 +121,9 @@ class Status:
             ("fits_rejected", str(self.fits_rejected)),
             ("last_rejection", self.last_rejection),
             ("changes_detected", str(self.changes_detected)),
+            ("samples_passed", str(self.samples_passed)),
+            ("time_base_resets", str(self.time_base_resets)),
+            ("gyro_ignored", str(self.gyro_ignored)),
         ]
         return out
 
@@ -132,6 +139,8 @@ class Status:
             "matrix": None if self.matrix is None else list(self.matrix), "norm": self.norm, "age": self.age,
             "fits_accepted": self.fits_accepted, "fits_rejected": self.fits_rejected,
             "last_rejection": self.last_rejection, "changes_detected": self.changes_detected,
+            "samples_passed": self.samples_passed, "time_base_resets": self.time_base_resets,
+            "gyro_ignored": self.gyro_ignored,
         }
 
 
