@@ -203,14 +203,16 @@ class InactivityGate:
             g2 = None
             if gyro is not None:
                 gx, gy, gz = float(gyro[0]), float(gyro[1]), float(gyro[2])  # type: ignore[index]
-                g2 = gx * gx + gy * gy + gz * gz
-        except (TypeError, ValueError, IndexError):
+                if gx - gx != 0.0 or gy - gy != 0.0 or gz - gz != 0.0:
+                    gx = math.nan
+                g2 = gx * gx + gy * gy + gz * gz  # a finite but huge rate overflows to inf: rotating, not invalid
+        except (TypeError, ValueError, IndexError, OverflowError):
             self._invalid += 1
             return None
         if t - t != 0.0:
             self._time += 1
             return None
-        chk = x + y + z + (0.0 if g2 is None else g2)
+        chk = x + y + z + (0.0 if g2 is None or g2 == math.inf else g2)
         if chk - chk != 0.0:
             self._nonfinite += 1
             return None

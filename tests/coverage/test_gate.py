@@ -206,3 +206,17 @@ def test_bad_gate_options(kwargs: dict[str, float], match: str) -> None:
     """Out-of-range options raise ConfigError naming the option."""
     with pytest.raises(ConfigError, match=match):
         InactivityGate(**kwargs)  # type: ignore[arg-type]
+
+
+def test_a_huge_finite_gyro_means_rotating_not_invalid() -> None:
+    """A finite gyro whose squared norm overflows (1e160 rad/s) marks the window as rotating; it is
+    not a non-finite sample, and the gate emits again once the rates are sane and still."""
+    gate = InactivityGate(window_s=1.0, gyro_threshold=0.1)
+    g = np.array([0.0, 0.0, 9.81])
+    for k in range(50):
+        assert gate.push(0.02 * k, g, [1e160, 0.0, 0.0]) is None
+    assert gate.counters["dropped_nonfinite"] == 0
+    assert gate.push(1.0, g, [math.nan, 0.0, 0.0]) is None
+    assert gate.counters["dropped_nonfinite"] == 1
+    emitted = [gate.push(1.0 + 0.02 * k, g, [0.0, 0.0, 0.0]) for k in range(200)]
+    assert any(e is not None for e in emitted)
