@@ -26,7 +26,7 @@ TUNING = (1, 2, 3, 11, 12, 13)
 HELD_OUT = tuple(range(100, 110))
 
 
-def _generator():  # noqa: ANN202 - a module loaded from the tests folder
+def _generator():
     path = Path(__file__).resolve().parents[1] / "tests" / "independent" / "generator.py"
     spec = importlib.util.spec_from_file_location("margcal_independent_generator", path)
     if spec is None or spec.loader is None:
@@ -36,7 +36,7 @@ def _generator():  # noqa: ANN202 - a module loaded from the tests folder
     return module
 
 
-def case(gen, seed: int, tilt: float, seconds: float) -> dict[str, float]:  # noqa: ANN001
+def case(gen, seed: int, tilt: float, seconds: float) -> dict[str, float]:
     """One ground-robot recording: fit, measured and predicted heading p95, share of parameters updated."""
     rec = gen.generate("mag", "ground", duration_s=seconds, rate_hz=50.0, seed=seed, tilt_deg=tilt,
                        symmetric_soft_iron=True)
