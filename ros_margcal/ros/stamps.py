@@ -13,6 +13,8 @@ calibrated. ``StampSource`` chooses per sample, for the node's ``stamp_source`` 
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 __all__ = ["STAMP_SOURCES", "StampSource"]
 
 STAMP_SOURCES = ("auto", "header", "receive")
@@ -41,8 +43,9 @@ class StampSource:
         """The source in use now: ``"header"`` or ``"receive"``."""
         return "receive" if self.mode == "receive" or self.fell_back else "header"
 
-    def choose(self, header_t: float, receive_t: float) -> float:
-        """The time of a sample with header stamp ``header_t`` received at ``receive_t`` (seconds).
+    def choose(self, header_t: float, receive_t: float | Callable[[], float]) -> float:
+        """The time of a sample with header stamp ``header_t`` received at ``receive_t`` (seconds, or a
+        function giving it, called only when the receive time is used).
 
         In ``auto`` mode the first unusable header stamp (zero, repeated or going backwards) switches to
         the receive time for good and sets ``warning`` once (the caller logs it and clears it).
@@ -50,7 +53,7 @@ class StampSource:
         if self.mode == "header":
             return header_t
         if self.mode == "receive" or self.fell_back:
-            return receive_t
+            return receive_t() if callable(receive_t) else receive_t
         last = self._last_header
         if header_t <= 0.0 or (last is not None and header_t <= last):
             self.fell_back = True
@@ -58,7 +61,7 @@ class StampSource:
             after = "" if last is None else f" after {last:.9f} s"
             self.warning = (f"{self.stream}: header stamps are {why} ({header_t:.9f} s{after}); "
                             "using the receive time from now on (set stamp_source to 'header' or 'receive' to choose)")
-            return receive_t
+            return receive_t() if callable(receive_t) else receive_t
         self._last_header = header_t
         return header_t
 

@@ -51,6 +51,19 @@ def test_constant_stamps_are_all_dropped_unless_auto() -> None:
     assert auto.dropped["repeated_stamp"] == 0 and auto.passed == 100
 
 
+def test_receive_time_is_asked_for_only_when_used() -> None:
+    calls = []
+
+    def now() -> float:
+        calls.append(1)
+        return 100.0 + len(calls)
+
+    src = StampSource("auto")
+    assert src.choose(1.0, now) == 1.0 and src.choose(2.0, now) == 2.0 and not calls
+    assert src.choose(2.0, now) == 101.0 and len(calls) == 1
+    assert StampSource("header").choose(0.0, now) == 0.0 and len(calls) == 1
+
+
 def test_unknown_mode_is_refused() -> None:
     with pytest.raises(ValueError, match="stamp_source"):
         StampSource("gps")
