@@ -124,7 +124,7 @@ def bench(seconds: float, imu_rate: float, mag_rate: float) -> int:
     """Run the node here and the publisher in another process; print the figures."""
     rclpy.init()
     node = TimedNode(parameter_overrides=[Parameter("calibration_file", value="")])
-    executor = MultiThreadedExecutor(num_threads=2)
+    executor = MultiThreadedExecutor(num_threads=4)  # as margcal_node: a thread per callback group
     executor.add_node(node)
     spinner = threading.Thread(target=executor.spin, daemon=True)
     spinner.start()

@@ -16,12 +16,13 @@ Services (std_srvs/Trigger): ``~/reset`` (forget samples and calibrations), ``~/
 calibration file now), ``~/refit`` (validate and fit now; the validator and guard rails still decide).
 
 Threads: the sample callbacks (conversion, stamp choice, gate, buffer insert, publishing the
-calibrated message) run in the node's default callback group; each ``SensorCalibrator`` defers its
+calibrated message) run in one callback group per sensor; each ``SensorCalibrator`` defers its
 evaluation (``defer_evaluation``), and a timer in a callback group of its own (every
-``evaluation_period_s``) runs ``run_pending`` under the sensor's lock: the validator under it, the
-fit outside it on a snapshot, the new calibration swapped in under it. ``main`` spins a
-``MultiThreadedExecutor`` with two threads, so a fit never delays a sample callback by more than
-the validation; with a single-threaded executor the node works the same, only serially.
+``evaluation_period_s``) runs ``run_pending`` under the sensor's lock: the centre update and the
+validator under it, the fit outside it on a snapshot, the new calibration swapped in under it.
+Status and services use the default group. ``main`` spins a ``MultiThreadedExecutor`` with a
+thread per group, so a fit never delays a sample callback, and a validation only the callbacks of
+its own sensor; with a single-threaded executor the node works the same, only serially.
 
 Sample times come from the header stamp or the receive time (``stamp_source``: ``auto`` uses the
 header stamp until it is zero or stops increasing, then the receive time, with one warning).
@@ -146,6 +147,7 @@ class MargCalNode(Node):
         self._frame: dict[str, str] = dict.fromkeys(SENSORS, "")
         self._last_rx: dict[str, float] = {}
         self._locks = {s: threading.Lock() for s in SENSORS}
+        self._save_lock = threading.Lock()  # autosave runs on the worker, save on a service
         mode = str(self.get_parameter("stamp_source").value)
         if mode not in STAMP_SOURCES:
             log.error(f"stamp_source {mode!r} is not one of {STAMP_SOURCES}; using 'auto'")
@@ -166,10 +168,12 @@ class MargCalNode(Node):
             self._pub_cal[s] = self.create_publisher(String, f"/calib/{s}", latched)
         if "mag" in self._cals:
             self._pub_mag = self.create_publisher(MagneticField, "imu_calibrated/mag", OUTPUT_DEPTH)
-            self.create_subscription(MagneticField, "imu/mag", self._on_mag, qos_profile_sensor_data)
+            self.create_subscription(MagneticField, "imu/mag", self._on_mag, qos_profile_sensor_data,
+                                     callback_group=MutuallyExclusiveCallbackGroup())
         if "accel" in self._cals:
             self._pub_imu = self.create_publisher(Imu, "imu_calibrated/data_raw", OUTPUT_DEPTH)
-            self.create_subscription(Imu, "imu/data_raw", self._on_imu, qos_profile_sensor_data)
+            self.create_subscription(Imu, "imu/data_raw", self._on_imu, qos_profile_sensor_data,
+                                     callback_group=MutuallyExclusiveCallbackGroup())
         self._pub_status = self.create_publisher(DiagnosticArray, "/calib/status", 10)
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_service(Trigger, "~/reset", self._srv_reset)
@@ -340,7 +344,8 @@ class MargCalNode(Node):
         if not cals:
             return False, "nothing to save: no sensor is calibrated"
         try:
-            save_calibrations(path, cals, node=self.get_name())
+            with self._save_lock:
+                save_calibrations(path, cals, node=self.get_name())
         except OSError as exc:
             self.get_logger().error(f"cannot write {path}: {exc}")
             return False, f"cannot write {path}: {exc}"
@@ -395,7 +400,7 @@ def main(args: list[str] | None = None) -> None:
     """Console entry point ``margcal_node`` (``ros2 run ros_margcal margcal_node``)."""
     rclpy.init(args=args)
     node = None
-    executor = MultiThreadedExecutor(num_threads=2)  # sample callbacks and the evaluation worker
+    executor = MultiThreadedExecutor(num_threads=4)  # a thread per callback group: mag, accel, worker, default
     try:
         node = MargCalNode()
         executor.add_node(node)
