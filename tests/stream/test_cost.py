@@ -194,3 +194,34 @@ def test_rich_motion_calibrates_as_soon_as_without_skipping(motion: str, monkeyp
     assert first and every
     assert first[0][0] == every[0][0]
     np.testing.assert_array_equal(first[0][1].offset, every[0][1].offset)
+
+
+def test_a_worker_thread_beside_the_sample_path(tumble: sim.Recording) -> None:
+    """The node's arrangement without rclpy: pushes under the lock on one thread, run_pending on another."""
+    cal = SensorCalibrator("mag")
+    cal.defer_evaluation = True
+    lock = threading.Lock()
+    done = threading.Event()
+    errors: list[BaseException] = []
+    calibrated: list[Any] = []
+
+    def worker() -> None:
+        try:
+            while not done.is_set() or cal.pending:
+                calibrated.extend(e for e in cal.run_pending(lock) if e.kind is EventKind.CALIBRATED)
+                done.wait(0.002)
+        except BaseException as exc:
+            errors.append(exc)
+
+    thread = threading.Thread(target=worker)
+    thread.start()
+    try:
+        for t, v in zip(tumble.t.tolist(), tumble.raw, strict=True):
+            with lock:
+                cal.push(t, v)
+    finally:
+        done.set()
+        thread.join(timeout=60.0)
+    assert not thread.is_alive() and not errors
+    assert calibrated and cal.calibration is calibrated[-1].calibration
+    assert np.linalg.norm(cal.calibration.offset - tumble.truth.offset) < 0.02 * tumble.truth.norm
