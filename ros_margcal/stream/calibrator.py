@@ -63,17 +63,6 @@ log = logging.getLogger(__name__)
 Array = NDArray[np.float64]
 
 
-SKIP_SIZE_TOLERANCE = 0.05
-"""An evaluation is not repeated while the buffer size stays within this fraction (see ``_unchanged``)."""
-SKIP_FAR = 4.0
-"""... or whatever the size once the validator predicted more than this many times its threshold ..."""
-SKIP_RESIDUAL_TOLERANCE = 0.25
-"""... and the mean recent residual within this fraction (plus 0.1 % of the norm)."""
-SKIP_MIN_WAIT_S = 1.0
-"""The back-off on unchanged data starts at this many seconds (or the cadence interval if longer) ..."""
-SKIP_MAX_WAIT_S = 120.0
-"""... and doubles up to this (or the cadence interval if longer)."""
-
 DROP_REASONS = ("wrong_size", "nonfinite", "zero", "magnitude", "repeated_stamp", "backwards_stamp", "burst", "outlier")
 
 
@@ -334,6 +323,18 @@ class SensorCalibrator:
 
     # -- validation, fit, guard rails -------------------------------------------------------------
 
+    # an evaluation on materially unchanged data is skipped (see _unchanged)
+    SKIP_SIZE_TOLERANCE = 0.05
+    """Relative change of the buffer size within which the data count as unchanged (after a validator
+    refusal or while calibrated; after a guard-rail refusal the size must be the same)."""
+    SKIP_FAR = 4.0
+    """A prediction beyond this many times the threshold ignores the buffer size (only new bins help)."""
+    SKIP_RESIDUAL_TOLERANCE = 0.25
+    """Relative change of the mean recent residual (plus 0.1 % of the norm) within which data are unchanged."""
+    SKIP_MIN_WAIT_S = 1.0
+    """First back-off on unchanged data, s (or the cadence interval if longer); it doubles per repeat ..."""
+    SKIP_MAX_WAIT_S = 120.0
+    """... up to this, s (or the cadence interval if longer)."""
     defer_evaluation: bool = False
     """False (replay, offline): a due evaluation (centre, validator, fit) runs inside ``push``. True (the
     node): ``push`` only records it and ``run_pending`` runs it, e.g. on a worker thread, so the
@@ -413,13 +414,13 @@ class SensorCalibrator:
         # recheck, and never a prediction many times the threshold (only new directions can)
         pred, thr = self._predicted, self.threshold
         rejected = pred is not None and not pred <= thr
-        if rejected and not pred <= SKIP_FAR * thr:
+        if rejected and not pred <= self.SKIP_FAR * thr:
             size_tol = math.inf
         else:
-            size_tol = SKIP_SIZE_TOLERANCE * n0 if (rejected or (self._cal is not None and not chd)) else 0.0
-        if abs(n - n0) > size_tol or abs(res - res0) > SKIP_RESIDUAL_TOLERANCE * res0 + 1e-3:
+            size_tol = self.SKIP_SIZE_TOLERANCE * n0 if (rejected or (self._cal is not None and not chd)) else 0.0
+        if abs(n - n0) > size_tol or abs(res - res0) > self.SKIP_RESIDUAL_TOLERANCE * res0 + 1e-3:
             return False
-        wait = min(max(interval, SKIP_MIN_WAIT_S) * 2.0**self._backoff, max(interval, SKIP_MAX_WAIT_S))
+        wait = min(max(interval, self.SKIP_MIN_WAIT_S) * 2.0**self._backoff, max(interval, self.SKIP_MAX_WAIT_S))
         return t - self._full_eval_t < wait
 
     def _update_center(self) -> None:
