@@ -20,8 +20,10 @@ setup(
         (f"share/{PACKAGE}/msg_configs", glob("msg_configs/*.yaml") + glob("msg_configs/*.json")),
         (f"share/{PACKAGE}/launch", glob("launch/*.launch.py")),
     ],
-    install_requires=["setuptools", "numpy>=1.24", "scipy>=1.10", "PyYAML>=6", "rosbags>=0.10", "matplotlib>=3.6"],
+    install_requires=["setuptools", "numpy>=1.24", "scipy>=1.10", "PyYAML>=6", "rosbags>=0.10", "matplotlib>=3.6", "tqdm>=4.60"],
     extras_require={"test": ["pytest>=7", "hypothesis>=6"], "dev": ["ruff", "mypy"]},
+    # colcon test (ament_python) runs pytest when tests_require (or extras_require["test"]) names it
+    tests_require=["pytest>=7", "hypothesis>=6"],
     zip_safe=True,
     entry_points={
         "console_scripts": [

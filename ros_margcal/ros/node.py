@@ -3,15 +3,29 @@
 Topics (defaults, all remappable; REP-145 names, REP-103 units):
 
 - subscribes ``imu/data_raw`` (sensor_msgs/Imu) and ``imu/mag`` (sensor_msgs/MagneticField) with
-  the sensor-data QoS profile;
-- publishes ``imu_calibrated/data_raw`` and ``imu_calibrated/mag`` (header unchanged, covariance
-  ``W Σ Wᵀ``), ``/calib/status`` (diagnostic_msgs/DiagnosticArray, one status per sensor, every
-  ``status_period_s``; also on ``/diagnostics`` when ``publish_diagnostics``), and the current
+  the sensor-data QoS profile (best effort: REP-2003 for consumers of raw sensor data; it matches
+  reliable and best-effort drivers);
+- publishes, reliable (the system default, REP-2003 for publishers, so default-QoS and sensor-data
+  subscribers both receive), ``imu_calibrated/data_raw`` and ``imu_calibrated/mag`` (header
+  unchanged, covariance ``W Σ Wᵀ``), ``/calib/status`` (diagnostic_msgs/DiagnosticArray, one status
+  per sensor, every ``status_period_s``; also on ``/diagnostics`` when ``publish_diagnostics``), and the current
   calibration on ``/calib/mag`` and ``/calib/accel`` (std_msgs/String with the ``ros__parameters``
   YAML, transient-local so late joiners get it).
 
 Services (std_srvs/Trigger): ``~/reset`` (forget samples and calibrations), ``~/save`` (write the
 calibration file now), ``~/refit`` (validate and fit now; the validator and guard rails still decide).
+
+Threads: the sample callbacks (conversion, stamp choice, gate, buffer insert, publishing the
+calibrated message) run in one callback group per sensor; each ``SensorCalibrator`` defers its
+evaluation (``defer_evaluation``), and a timer in a callback group of its own (every
+``evaluation_period_s``) runs ``run_pending`` under the sensor's lock: the centre update and the
+validator under it, the fit outside it on a snapshot, the new calibration swapped in under it.
+Status and services use the default group. ``main`` spins a ``MultiThreadedExecutor`` with a
+thread per group, so a fit never delays a sample callback, and a validation only the callbacks of
+its own sensor; with a single-threaded executor the node works the same, only serially.
+
+Sample times come from the header stamp or the receive time (``stamp_source``: ``auto`` uses the
+header stamp until it is zero or stops increasing, then the receive time, with one warning).
 
 Parameters are declared with descriptors and ranges (defaults in ``msg_configs/margcal.yaml``,
 float literals since rclpy types parameters strictly) and checked again as a whole
@@ -22,6 +36,7 @@ is refused with an error log line and the node starts uncalibrated.
 
 from __future__ import annotations
 
+import threading
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -30,7 +45,8 @@ from typing import Any
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
-from rclpy.executors import ExternalShutdownException
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
@@ -45,10 +61,13 @@ from ..stream.config import PipelineConfig
 from ..stream.status import EventKind, Level
 from ..validation.shipped import load_validator
 from .messages import calibrate_imu, calibrate_mag, calibration_to_string, imu_to_numpy, mag_to_numpy, status_to_diagnostic
+from .stamps import STAMP_SOURCES, StampSource
 
 __all__ = ["MargCalNode", "main"]
 
 SENSORS = ("mag", "accel")
+OUTPUT_DEPTH = 50
+"""KEEP_LAST depth of the calibrated streams (reliable, volatile: the system default profile)."""
 
 # per-sensor tunables: name -> (lower bound, upper bound, description); value 0.0 means "off/auto" where noted
 _FLOAT_PARAMS: dict[str, tuple[float, float, str]] = {
@@ -116,11 +135,24 @@ class MargCalNode(Node):
         self.declare_parameter("stale_timeout_s", 5.0, _fdesc(0.1, 3600.0, "no samples for this long -> STALE, s"))
         self.declare_parameter("validator_file", "", ParameterDescriptor(
             description="trained validator JSON (margcal train-validator); '' = the shipped one", read_only=True))
+        self.declare_parameter("stamp_source", "auto", ParameterDescriptor(
+            description="sample time: 'header' stamp, 'receive' time, or 'auto' (header, falling back to the receive "
+                        "time for good when stamps are zero or not increasing)", read_only=True,
+            additional_constraints="one of: " + ", ".join(STAMP_SOURCES)))
+        self.declare_parameter("evaluation_period_s", 0.05, _fdesc(
+            0.001, 10.0, "period of the worker that runs due validations and fits off the sample callbacks, s", read_only=True))
 
         self._publish_raw = bool(self.get_parameter("publish_uncalibrated").value)  # read per message: cached
         self._cals: dict[str, SensorCalibrator] = {}
         self._frame: dict[str, str] = dict.fromkeys(SENSORS, "")
         self._last_rx: dict[str, float] = {}
+        self._locks = {s: threading.Lock() for s in SENSORS}
+        self._save_lock = threading.Lock()  # autosave runs on the worker, save on a service
+        mode = str(self.get_parameter("stamp_source").value)
+        if mode not in STAMP_SOURCES:
+            log.error(f"stamp_source {mode!r} is not one of {STAMP_SOURCES}; using 'auto'")
+            mode = "auto"
+        self._stamps = {"mag": StampSource(mode, "imu/mag"), "accel": StampSource(mode, "imu/data_raw")}
         loaded = self._load_file()
         validator = self._load_validator()
         latched = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE,
@@ -132,13 +164,16 @@ class MargCalNode(Node):
             if not enabled:
                 continue
             self._cals[s] = SensorCalibrator(s, cfg, calibration=loaded.get(s), validator=validator)
+            self._cals[s].defer_evaluation = True
             self._pub_cal[s] = self.create_publisher(String, f"/calib/{s}", latched)
         if "mag" in self._cals:
-            self._pub_mag = self.create_publisher(MagneticField, "imu_calibrated/mag", qos_profile_sensor_data)
-            self.create_subscription(MagneticField, "imu/mag", self._on_mag, qos_profile_sensor_data)
+            self._pub_mag = self.create_publisher(MagneticField, "imu_calibrated/mag", OUTPUT_DEPTH)
+            self.create_subscription(MagneticField, "imu/mag", self._on_mag, qos_profile_sensor_data,
+                                     callback_group=MutuallyExclusiveCallbackGroup())
         if "accel" in self._cals:
-            self._pub_imu = self.create_publisher(Imu, "imu_calibrated/data_raw", qos_profile_sensor_data)
-            self.create_subscription(Imu, "imu/data_raw", self._on_imu, qos_profile_sensor_data)
+            self._pub_imu = self.create_publisher(Imu, "imu_calibrated/data_raw", OUTPUT_DEPTH)
+            self.create_subscription(Imu, "imu/data_raw", self._on_imu, qos_profile_sensor_data,
+                                     callback_group=MutuallyExclusiveCallbackGroup())
         self._pub_status = self.create_publisher(DiagnosticArray, "/calib/status", 10)
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_service(Trigger, "~/reset", self._srv_reset)
@@ -150,6 +185,9 @@ class MargCalNode(Node):
         if not self._apply_in_validation:
             self.add_post_set_parameters_callback(self._apply_parameters)
         self.create_timer(float(self.get_parameter("status_period_s").value), self._publish_status)
+        self._eval_group = MutuallyExclusiveCallbackGroup()
+        self.create_timer(float(self.get_parameter("evaluation_period_s").value), self._run_pending,
+                          callback_group=self._eval_group)
         for s, c in self._cals.items():
             if c.calibration is not None:
                 self._pub_cal[s].publish(calibration_to_string(c.calibration, String, node=self.get_name()))
@@ -200,36 +238,56 @@ class MargCalNode(Node):
                 except ConfigError as exc:
                     return SetParametersResult(successful=False, reason=str(exc))
                 if self._apply_in_validation:
-                    self._cals[s].reconfigure(self._config_from(s, changed))
+                    with self._locks[s]:
+                        self._cals[s].reconfigure(self._config_from(s, changed))
         return SetParametersResult(successful=True)
 
     def _apply_parameters(self, params: list[Parameter]) -> None:
         self._publish_raw = bool(self.get_parameter("publish_uncalibrated").value)
         for s, cal in self._cals.items():
             if any(p.name.startswith(f"{s}.") for p in params):
-                cal.reconfigure(self._config_from(s, {}))
+                with self._locks[s]:
+                    cal.reconfigure(self._config_from(s, {}))
 
     # -- data -------------------------------------------------------------------------------------
 
     def _on_mag(self, msg: MagneticField) -> None:
         t, v = mag_to_numpy(msg)
-        self._ingest("mag", t, v, None, msg.header.frame_id)
-        cal = self._cals["mag"].calibration
+        cal = self._ingest("mag", t, v, None, msg.header.frame_id)
         if cal is not None or self._publish_raw:
             self._pub_mag.publish(calibrate_mag(msg, cal))
 
     def _on_imu(self, msg: Imu) -> None:
         t, acc, gyro = imu_to_numpy(msg)
-        self._ingest("accel", t, acc, gyro, msg.header.frame_id)
-        cal = self._cals["accel"].calibration
+        cal = self._ingest("accel", t, acc, gyro, msg.header.frame_id)
         if cal is not None or self._publish_raw:
             self._pub_imu.publish(calibrate_imu(msg, cal))
 
-    def _ingest(self, s: str, t: float, v: Any, gyro: Any, frame_id: str) -> None:
+    def _now_s(self) -> float:
+        return self.get_clock().now().nanoseconds * 1e-9
+
+    def _ingest(self, s: str, t: float, v: Any, gyro: Any, frame_id: str) -> Any:
+        """Push one sample (the slow evaluation is only recorded); the calibration to publish it with."""
         self._frame[s] = frame_id
         self._last_rx[s] = time.monotonic()
-        for ev in self._cals[s].push(t, v, gyro):
+        src = self._stamps[s]
+        t = src.choose(t, self._now_s)
+        if src.warning is not None:
+            self.get_logger().warning(src.pop_warning() or "")
+        c = self._cals[s]
+        with self._locks[s]:
+            events = c.push(t, v, gyro)
+            cal = c.calibration
+        for ev in events:
             self._handle(ev)
+        return cal
+
+    def _run_pending(self) -> None:
+        """The worker: run the evaluations the sample callbacks recorded (validation and fit)."""
+        for s, c in self._cals.items():
+            if c.pending:
+                for ev in c.run_pending(self._locks[s]):
+                    self._handle(ev)
 
     def _handle(self, ev: Any) -> None:
         log = self.get_logger()
@@ -286,7 +344,8 @@ class MargCalNode(Node):
         if not cals:
             return False, "nothing to save: no sensor is calibrated"
         try:
-            save_calibrations(path, cals, node=self.get_name())
+            with self._save_lock:
+                save_calibrations(path, cals, node=self.get_name())
         except OSError as exc:
             self.get_logger().error(f"cannot write {path}: {exc}")
             return False, f"cannot write {path}: {exc}"
@@ -295,8 +354,9 @@ class MargCalNode(Node):
     # -- services ---------------------------------------------------------------------------------
 
     def _srv_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
-        for c in self._cals.values():
-            c.reset()
+        for s, c in self._cals.items():
+            with self._locks[s]:
+                c.reset()
         response.success, response.message = True, f"reset {sorted(self._cals)}: collecting"
         return response
 
@@ -307,12 +367,14 @@ class MargCalNode(Node):
     def _srv_refit(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         messages, ok = [], False
         for s, c in self._cals.items():
-            events = c.refit()
+            with self._locks[s]:
+                events = c.refit()
+                status = c.status().message
             for ev in events:
                 self._handle(ev)
             done = [e for e in events if e.kind in (EventKind.CALIBRATED, EventKind.REJECTED)]
             ok = ok or any(e.kind is EventKind.CALIBRATED for e in done)
-            messages.append(f"{s}: " + ("; ".join(e.message for e in done) or c.status().message))
+            messages.append(f"{s}: " + ("; ".join(e.message for e in done) or status))
         response.success, response.message = ok, " | ".join(messages)
         return response
 
@@ -323,7 +385,8 @@ class MargCalNode(Node):
         stale = float(self.get_parameter("stale_timeout_s").value)
         arr = DiagnosticArray(header=Header(stamp=self.get_clock().now().to_msg(), frame_id=""))
         for s, c in self._cals.items():
-            st = c.status()
+            with self._locks[s]:
+                st = c.status()
             if s in self._last_rx and now - self._last_rx[s] > stale:
                 st = replace(st, level=Level.STALE, message=f"no samples for {now - self._last_rx[s]:.0f} s; {st.message}")
             arr.status.append(status_to_diagnostic(st, DiagnosticStatus, KeyValue, level_encoder=_level_bytes,
@@ -337,12 +400,15 @@ def main(args: list[str] | None = None) -> None:
     """Console entry point ``margcal_node`` (``ros2 run ros_margcal margcal_node``)."""
     rclpy.init(args=args)
     node = None
+    executor = MultiThreadedExecutor(num_threads=4)  # a thread per callback group: mag, accel, worker, default
     try:
         node = MargCalNode()
-        rclpy.spin(node)
+        executor.add_node(node)
+        executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        executor.shutdown()
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()

@@ -12,6 +12,9 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from tqdm import tqdm
+from tqdm.contrib.logging import logging_redirect_tqdm
+
 from ..recordings.bag import iter_bag_messages
 from ..recordings.read import read_recording
 from .calibrator import SensorCalibrator
@@ -45,58 +48,44 @@ def replay(path: Path, *, sensor: str | None = None, unit: str | None = None, st
         path: the recording.
         sensor, unit: for a CSV (see the command's options).
         status_every: seconds of recording time between timeline status entries (0: events only).
-        progress: show a counter on stderr.
+        progress: show a progress bar on stderr (tqdm); timeline lines and log records (the root
+            logger's console handlers) are written above it, never into it.
         on_line: called with each timeline line (str) as it happens.
         validator: the validator every calibrator uses (None: the shipped default).
     """
     samples, units = _samples(path, sensor, unit)
-    bar = _Progress(enabled=progress)
     cals: dict[str, SensorCalibrator] = {}
     timeline: list[dict[str, Any]] = []
     next_status: dict[str, float] = {}
     n = 0
-    for t, s, xyz, gyro in samples:
-        cal = cals.get(s)
-        if cal is None:
-            cal = cals[s] = SensorCalibrator(s, PipelineConfig.for_sensor(s, units.get(s)), validator=validator)
-            next_status[s] = t
-        for ev in cal.push(t, xyz, gyro):
-            timeline.append(_event_entry(ev))
-            if on_line:
-                bar.clear()
-                on_line(f"{ev.t:9.2f} s  {s:5s}  {ev.kind.value:10s} {ev.message}")
-        if status_every > 0 and t >= next_status[s]:
-            st = cal.status(t)
-            timeline.append({"kind": "status", **st.to_dict()})
-            next_status[s] = t + status_every
-            if on_line:
-                bar.clear()
-                on_line(f"{t:9.2f} s  {s:5s}  {'status':10s} [{st.level.name}] {st.message}")
-        n += 1
-        if n % 1000 == 0:
-            bar.show(f"replay: {n} messages, t = {t:.1f} s")
-    bar.show(f"replay: {n} messages done")
-    bar.clear(final=True)
+    # disable=None: no bar when stderr is not a terminal (a log file, a pipe)
+    with tqdm(samples, desc="replay", unit=" msg", file=sys.stderr, disable=None if progress else True) as bar, \
+            logging_redirect_tqdm(tqdm_class=tqdm):
+
+        def emit(line: str) -> None:
+            with tqdm.external_write_mode(file=sys.stdout):  # clears the bar, writes, redraws it
+                on_line(line)
+                sys.stdout.flush()
+
+        for t, s, xyz, gyro in bar:
+            cal = cals.get(s)
+            if cal is None:
+                cal = cals[s] = SensorCalibrator(s, PipelineConfig.for_sensor(s, units.get(s)), validator=validator)
+                next_status[s] = t
+            for ev in cal.push(t, xyz, gyro):
+                timeline.append(_event_entry(ev))
+                if on_line:
+                    emit(f"{ev.t:9.2f} s  {s:5s}  {ev.kind.value:10s} {ev.message}")
+            if status_every > 0 and t >= next_status[s]:
+                st = cal.status(t)
+                timeline.append({"kind": "status", **st.to_dict()})
+                next_status[s] = t + status_every
+                if on_line:
+                    emit(f"{t:9.2f} s  {s:5s}  {'status':10s} [{st.level.name}] {st.message}")
+            n += 1
+            if n % 1000 == 0:
+                bar.set_postfix_str(f"t = {t:.1f} s", refresh=False)
     return {"calibrators": cals, "timeline": timeline, "messages": n}
-
-
-class _Progress:
-    """A one-line ``\r`` counter on stderr that steps aside for the timeline lines on stdout."""
-
-    def __init__(self, enabled: bool) -> None:
-        self.enabled = enabled
-        self.width = 0
-
-    def show(self, text: str) -> None:
-        if self.enabled:
-            sys.stdout.flush()
-            print(f"\r{text}", end="", file=sys.stderr, flush=True)
-            self.width = len(text)
-
-    def clear(self, final: bool = False) -> None:
-        if self.enabled and self.width:
-            print("\n" if final else f"\r{' ' * self.width}\r", end="", file=sys.stderr, flush=True)
-            self.width = 0
 
 
 def _event_entry(ev: Event) -> dict[str, Any]:

@@ -2,7 +2,10 @@
 
 Needs a sourced ROS 2 Jazzy (rclpy, sensor_msgs, diagnostic_msgs, std_srvs); skipped elsewhere.
 Messages are built with ``tests/msgdata.py`` from the same simulated arrays the rosbags-based tests
-use, and the node's calibration is compared with the pure pipeline run over the same samples.
+use, and the node's calibration is compared with the pure pipeline run over the same samples. The
+calibrated stream is received by a default-QoS (reliable) and a sensor-data (best-effort) subscriber
+(REP-2003). The harness spins a single-threaded executor (deterministic); one test spins the
+``MultiThreadedExecutor`` of ``main``, where the evaluation worker runs beside the sample callbacks.
 """
 
 from __future__ import annotations
@@ -17,12 +20,12 @@ import pytest
 
 rclpy = pytest.importorskip("rclpy", reason="rclpy not importable: node tests need a sourced ROS 2 Jazzy environment")
 
-from msgdata import MessageClasses, mag_stream, rclpy_classes  # noqa: E402
+from msgdata import MessageClasses, mag_msg, mag_stream, rclpy_classes  # noqa: E402
 from rclpy.context import Context  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.executors import Executor, MultiThreadedExecutor, SingleThreadedExecutor  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
 from ros_margcal.model.calibration import Calibration  # noqa: E402
@@ -64,23 +67,29 @@ def stream() -> sim.Recording:
 class Harness:
     """The node under test plus a peer node that publishes raw data and records the outputs."""
 
-    def __init__(self, context: Context, c: MessageClasses, cal_file: Path, **params: Any) -> None:
+    def __init__(self, context: Context, c: MessageClasses, cal_file: Path, executor: type[Executor] = SingleThreadedExecutor,
+                 **params: Any) -> None:
         overrides = [Parameter("calibration_file", value=str(cal_file)), Parameter("status_period_s", value=0.1),
                      Parameter("accel.enabled", value=False)]
         overrides += [Parameter(k.replace("__", "."), value=v) for k, v in params.items()]
         self.c = c
         self.node = MargCalNode(context=context, parameter_overrides=overrides)
         self.peer = Node("margcal_test_peer", context=context)
-        self.executor = SingleThreadedExecutor(context=context)
+        self.executor = executor(context=context)
         self.executor.add_node(self.node)
         self.executor.add_node(self.peer)
         self.status: list[Any] = []
         self.calibrations: list[Any] = []
         self.calibrated: list[Any] = []
+        self.calibrated_best_effort: list[Any] = []
         self.pub_mag = self.peer.create_publisher(c.MagneticField, "imu/mag", RELIABLE)
         self.peer.create_subscription(c.DiagnosticArray, "/calib/status", self.status.append, 10)
         self.peer.create_subscription(c.String, "/calib/mag", self.calibrations.append, LATCHED)
         self.peer.create_subscription(c.MagneticField, "imu_calibrated/mag", self.calibrated.append, RELIABLE)
+        self.peer.create_subscription(c.MagneticField, "imu_calibrated/mag", self.calibrated_best_effort.append,
+                                      qos_profile_sensor_data)
+        self.default_qos: list[Any] = []  # depth only: the system default profile (reliable, volatile)
+        self.peer.create_subscription(c.MagneticField, "imu_calibrated/mag", self.default_qos.append, 10)
         self.spin_until(lambda: self.pub_mag.get_subscription_count() > 0, 5.0)
 
     def spin_until(self, cond: Callable[[], bool], timeout_s: float) -> bool:
@@ -91,8 +100,10 @@ class Harness:
             self.executor.spin_once(timeout_sec=0.01)
         return cond()
 
-    def publish(self, rec: sim.Recording) -> None:
-        for msg in mag_stream(self.c, rec.t, rec.raw):
+    def publish(self, rec: sim.Recording, stamp: float | None = None) -> None:
+        """Publish the recording (every header stamped ``stamp`` when given) and spin."""
+        msgs = mag_stream(self.c, rec.t, rec.raw) if stamp is None else (mag_msg(self.c, stamp, v) for v in rec.raw)
+        for msg in msgs:
             self.pub_mag.publish(msg)
             self.executor.spin_once(timeout_sec=0.001)
         self.spin_until(lambda: False, 0.5)
@@ -145,8 +156,11 @@ def test_status_calibration_topic_and_calibrated_stream(harness: Harness, stream
     assert st.level == bytes([0]) and st.message.startswith("calibrated")
     kv = {x.key: x.value for x in st.values}
     assert kv["state"] == "calibrated" and int(kv["samples_seen"]) > 0.9 * len(stream)
-    # calibrated messages: same stamps and frame, norm close to the field
-    assert harness.calibrated
+    # calibrated messages: same stamps and frame, norm close to the field; reliable output reaches
+    # reliable, default-QoS and sensor-data (best-effort) subscribers alike
+    assert harness.calibrated and harness.default_qos and harness.calibrated_best_effort
+    for received in (harness.default_qos, harness.calibrated_best_effort):
+        assert abs(np.linalg.norm(mag_to_numpy(received[-1])[1]) - cal.norm) < 0.05 * cal.norm
     out = harness.calibrated[-1]
     t_out, h = mag_to_numpy(out)
     assert out.header.frame_id == "imu_link"
@@ -255,5 +269,56 @@ def test_validator_file_is_used_and_a_bad_one_refused(context: Context, classes:
     h = Harness(context, classes, tmp_path / "cal.yaml", validator_file=str(bad))
     try:
         assert h.node.calibrators["mag"].validator.inputs == load_default_validator().inputs
+    finally:
+        h.close()
+
+
+def test_a_refused_parameter_leaves_the_calibration_alone(harness: Harness, stream: sim.Recording) -> None:
+    """A value PipelineConfig.checked() refuses is refused with its reason; calibration and options stay."""
+    harness.publish(stream)
+    cal = harness.node.calibrators["mag"]
+    assert harness.spin_until(lambda: cal.calibration is not None, 5.0)
+    before, config = cal.calibration, cal.config
+    res = harness.node.set_parameters([Parameter("mag.norm_min", value=9.0e-5)])[0]
+    assert not res.successful and "norm_min" in res.reason
+    assert cal.calibration is before and cal.config is config
+    assert harness.node.get_parameter("mag.norm_min").value == pytest.approx(config.norm_min)
+    harness.spin_until(lambda: False, 0.3)
+    kv = {x.key: x.value for x in harness.last_status().values}
+    assert kv["state"] == "calibrated"
+
+
+@pytest.mark.parametrize(("mode", "kept"), [("auto", True), ("receive", True), ("header", False)])
+def test_stamp_source_with_a_constant_header_stamp(context: Context, classes: MessageClasses, stream: sim.Recording,
+                                                   tmp_path: Path, mode: str, kept: bool) -> None:
+    """A driver stamping every message alike: auto and receive use the receive time, header drops them all."""
+    h = Harness(context, classes, tmp_path / "cal.yaml", stamp_source=mode)
+    try:
+        n = 300
+        h.publish(_head(stream, n), stamp=0.0 if mode == "auto" else 5.0)
+        cal = h.node.calibrators["mag"]
+        assert cal.seen >= 0.9 * n
+        if kept:  # (receive times closer than 1/max_rate_hz may still be dropped as bursts)
+            assert cal.dropped["repeated_stamp"] == 0 and cal.dropped["backwards_stamp"] == 0 and cal.passed > 0
+        else:
+            assert cal.dropped["repeated_stamp"] == cal.seen - 1
+    finally:
+        h.close()
+
+
+def _head(rec: sim.Recording, n: int) -> sim.Recording:
+    """The first ``n`` samples of a recording (times and raw values are all the harness uses)."""
+    return sim.Recording(t=rec.t[:n], raw=rec.raw[:n])
+
+
+def test_multithreaded_executor_calibrates(context: Context, classes: MessageClasses, stream: sim.Recording,
+                                           tmp_path: Path) -> None:
+    """main's executor: sample callbacks and the evaluation worker on threads of their own; the calibration arrives."""
+    h = Harness(context, classes, tmp_path / "cal.yaml", executor=MultiThreadedExecutor)
+    try:
+        h.publish(stream)
+        assert h.spin_until(lambda: bool(h.calibrations), 5.0), "no calibration published"
+        assert h.node.calibrators["mag"].calibration is not None
+        assert not h.node.calibrators["mag"].pending or h.spin_until(lambda: not h.node.calibrators["mag"].pending, 2.0)
     finally:
         h.close()
