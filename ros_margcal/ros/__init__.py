@@ -1,4 +1,5 @@
-"""ROS 2 glue: message conversion (``messages``, no rclpy needed) and the node (``node``, rclpy).
+"""ROS 2 glue: message conversion (``messages``) and the choice of sample time (``stamps``), neither needing
+rclpy, and the node (``node``, rclpy).
 
 This face does not import ``node``: import ``ros_margcal.ros.node`` where rclpy is available.
 """
@@ -9,8 +10,10 @@ from .messages import (
     calibrate_imu, calibrate_mag, calibration_from_string, calibration_to_string, imu_to_numpy, mag_to_numpy,
     propagate_covariance, stamp_to_seconds, status_to_diagnostic, vector3_to_numpy
 )
+from .stamps import STAMP_SOURCES, StampSource
 
 __all__ = [
+    "STAMP_SOURCES", "StampSource",
     "calibrate_imu", "calibrate_mag", "calibration_from_string", "calibration_to_string", "imu_to_numpy",
     "mag_to_numpy", "propagate_covariance", "stamp_to_seconds", "status_to_diagnostic", "vector3_to_numpy"
 ]
