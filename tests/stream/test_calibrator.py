@@ -295,7 +295,7 @@ def test_bad_options_are_refused(overrides: dict, match: str) -> None:
 
 def test_refit_cost_is_not_paid_per_sample(tumbling_mag: sim.Recording, monkeypatch: pytest.MonkeyPatch) -> None:
     """Fits run at most every refit_every samples and refit_min_interval_s seconds."""
-    import ros_margcal.stream.calibrator as fitting
+    import ros_margcal.stream.evaluation as fitting
 
     calls: list[int] = []
     real = fitting.fit

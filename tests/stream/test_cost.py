@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-import ros_margcal.stream.calibrator as calibrator_module
+import ros_margcal.stream.evaluation as calibrator_module
 from ros_margcal.sim import simulation as sim
 from ros_margcal.stream.calibrator import EventKind, SensorCalibrator
 

@@ -1,0 +1,275 @@
+"""The slow half of the streaming calibrator: validation, the fit and its guard rails, when to run them.
+
+``Evaluation`` is the part of ``calibrator.SensorCalibrator`` that decides whether the buffer is good
+enough and fits it (steps 4-6 of the calibrator's flow), kept apart from the per-sample path. It runs
+inline in ``push`` (replay) or, with ``defer_evaluation``, from ``run_pending`` on a worker (the node):
+the centre update and the validator under the caller's lock, the fit on a snapshot outside it, the
+result installed under it again, a fit whose data went stale meanwhile dropped. An evaluation on
+materially unchanged data (same bins, nearly the same buffer size and recent residual) is skipped with
+an exponential back-off, so a robot that never covers more directions does not pay for the same
+refusal over and over.
+
+It uses the calibrator's state (``_buffer``, ``_cal``, ``config``, ``validator``, the recent samples)
+and its helpers ``_install``, ``_set_state`` and ``_recent_points``.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..model.calibration import Calibration
+from ..model.errors import MargCalError
+from ..model.fitting import fit
+from .config import PipelineConfig, guard_rails
+from .status import Event, EventKind, State, pct
+
+__all__ = ["Evaluation"]
+
+log = logging.getLogger("ros_margcal.stream.calibrator")  # one logger name for the calibrator's messages
+
+Array = NDArray[np.float64]
+
+
+class Evaluation:
+    """Validation, fit and guard rails of a ``SensorCalibrator`` (a mixin: see the module docstring)."""
+
+    # an evaluation on materially unchanged data is skipped (see _unchanged)
+    SKIP_SIZE_TOLERANCE = 0.05
+    """Relative change of the buffer size within which the data count as unchanged (after a validator
+    refusal or while calibrated; after a guard-rail refusal the size must be the same)."""
+    SKIP_FAR = 4.0
+    """A prediction beyond this many times the threshold ignores the buffer size (only new bins help)."""
+    SKIP_RESIDUAL_TOLERANCE = 0.25
+    """Relative change of the mean recent residual (plus 0.1 % of the norm) within which data are unchanged."""
+    SKIP_MIN_WAIT_S = 1.0
+    """First back-off on unchanged data, s (or the cadence interval if longer); it doubles per repeat ..."""
+    SKIP_MAX_WAIT_S = 120.0
+    """... up to this, s (or the cadence interval if longer)."""
+    defer_evaluation: bool = False
+    """False (replay, offline): a due evaluation (centre, validator, fit) runs inside ``push``. True (the
+    node): ``push`` only records it and ``run_pending`` runs it, e.g. on a worker thread, so the
+    per-message path never pays for a fit. Same results when ``run_pending`` follows each ``push``."""
+    _pending: float | None = None
+    _last_full: tuple[tuple[Any, ...], tuple[Any, ...]] | None = None  # what the last full evaluation saw
+    _full_eval_t: float = -math.inf
+    _backoff: int = 0
+
+    def refit(self, t: float | None = None) -> list[Event]:
+        """Validate and fit now, ignoring the cadence (the refit service). The validator still decides."""
+        return self._evaluate(self._t if t is None else float(t), force=True)
+
+    @property
+    def pending(self) -> bool:
+        """True when ``push`` recorded an evaluation that ``run_pending`` has not run yet (deferred mode)."""
+        return self._pending is not None
+
+    def run_pending(self, lock: Any = None) -> list[Event]:
+        """Run the evaluation ``push`` recorded in deferred mode (nothing when none is due); its events.
+
+        With ``lock`` (a ``threading.Lock`` that every other use of this calibrator also holds), the
+        centre update and the validator run under it, the fit itself runs outside it on a snapshot of
+        the buffer, and the result is installed under it again: a sample callback waits at most for the
+        validation, never for the fit, and the calibration is swapped in at once. A fit whose data went
+        stale meanwhile (reset, sensor change, another calibration installed) is dropped.
+        """
+        if lock is not None:
+            lock.acquire()
+        try:
+            t, self._pending = self._pending, None
+            if t is None:
+                return []
+            events, job = self._validate(t, force=False)
+        finally:
+            if lock is not None:
+                lock.release()
+        if job is None:
+            return events
+        result = self._fit_compute(job)
+        if lock is not None:
+            lock.acquire()
+        try:
+            return events + self._fit_finish(job, result)
+        finally:
+            if lock is not None:
+                lock.release()
+
+    def _signature(self) -> tuple[tuple[Any, ...], tuple[Any, ...]]:
+        """What decides an evaluation's verdict, cheaply: the objects in use (buffer, calibration, options,
+        validator) and the values (buffer size and coverage, sensor-change state, mean recent residual)."""
+        res = sum(self._recent_r) / len(self._recent_r) if (self._cal is not None and self._recent_r) else 0.0
+        buf = self._buffer
+        return ((buf, self._cal, self.config, self.validator),
+                (len(buf), buf.coverage(), self.changes, self._changed, res))
+
+    def _unchanged(self, t: float, interval: float) -> bool:
+        """True when the last full evaluation saw materially the same data and its back-off has not run out.
+
+        Materially the same: the same buffer, calibration, options and validator, the same occupied
+        bins and change state, the same buffer size (within ``SKIP_SIZE_TOLERANCE`` after the
+        validator refused or while calibrated; exactly after guard rails refused a fit, which a few
+        more samples can turn around; any size after a prediction beyond ``SKIP_FAR`` times the
+        threshold, which only new directions can bring down) and a mean recent residual
+        within ``SKIP_RESIDUAL_TOLERANCE`` (relative, plus 0.1 % of the norm). Such an evaluation is
+        repeated only after ``max(interval, SKIP_MIN_WAIT_S) * 2**k`` seconds (at most
+        ``max(interval, SKIP_MAX_WAIT_S)``), ``k`` counting the full evaluations in a row on unchanged
+        data, so rich motion (new bins, a growing buffer) is evaluated at the usual cadence and motion
+        that cannot change the verdict (a ground robot's yaw turns) ever more rarely.
+        """
+        if self._last_full is None:
+            return False
+        (objs0, (n0, cov0, ch0, chd0, res0)), (objs, (n, cov, ch, chd, res)) = self._last_full, self._signature()
+        if any(x is not y for x, y in zip(objs, objs0, strict=True)) or (cov, ch, chd) != (cov0, ch0, chd0):
+            return False
+        # a few more samples can turn a fit's guard rails around, seldom the validator's verdict or a
+        # recheck, and never a prediction many times the threshold (only new directions can)
+        pred, thr = self._predicted, self.threshold
+        rejected = pred is not None and not pred <= thr
+        if rejected and not pred <= self.SKIP_FAR * thr:
+            size_tol = math.inf
+        else:
+            size_tol = self.SKIP_SIZE_TOLERANCE * n0 if (rejected or (self._cal is not None and not chd)) else 0.0
+        if abs(n - n0) > size_tol or abs(res - res0) > self.SKIP_RESIDUAL_TOLERANCE * res0 + 1e-3:
+            return False
+        wait = min(max(interval, self.SKIP_MIN_WAIT_S) * 2.0**self._backoff, max(interval, self.SKIP_MAX_WAIT_S))
+        return t - self._full_eval_t < wait
+
+    def _update_center(self) -> None:
+        if self._cal is not None and not self._changed:
+            return
+        pts = np.concatenate([self._buffer.points(), self._recent_points()])
+        if len(pts) < 10:
+            return
+        # centre and radius from a linear sphere fit (cheap); the LM fit refines it later
+        a = np.c_[2.0 * pts, np.ones(len(pts))]
+        sol, *_ = np.linalg.lstsq(a, (pts * pts).sum(axis=1), rcond=None)
+        c = sol[:3]
+        rad2 = sol[3] + c @ c
+        if np.isfinite(c).all() and np.isfinite(rad2) and rad2 > 0:
+            self._buffer.set_center(c, math.sqrt(rad2))
+
+    def _evaluate(self, t: float, *, force: bool) -> list[Event]:
+        """A due (``force``: a requested) evaluation: skipped on unchanged data, recorded when deferring."""
+        cfg = self.config
+        self._since_eval = 0
+        self._last_eval_t = t
+        if force:
+            self._pending = None
+        else:
+            interval = cfg.recheck_interval_s if (self._cal is not None and not self._changed) else cfg.refit_min_interval_s
+            if self._unchanged(t, interval):
+                return []
+            if self.defer_evaluation:
+                self._pending = t
+                return []
+        events, job = self._validate(t, force=force)
+        return events if job is None else events + self._fit_finish(job, self._fit_compute(job))
+
+    def _validate(self, t: float, *, force: bool) -> tuple[list[Event], dict[str, Any] | None]:
+        """Centre, indicators and the validator's verdict: the events, and the fit to run (or None)."""
+        cfg = self.config
+        if not force:
+            self._backoff = self._backoff + 1 if self._unchanged(t, math.inf) else 0
+            self._full_eval_t = t
+        self._update_center()
+        self._last_full = self._signature()
+        n = len(self._buffer)
+        if n < cfg.min_points:
+            self._predicted = None
+            self._last_reason = f"{n} samples buffered, need {cfg.min_points}"
+            return [Event(EventKind.REJECTED, t, self.sensor, f"not fitted: {self._last_reason}")] if force else [], None
+        self._indicators = self._buffer.indicators()
+        try:
+            pred = float(self.validator.predict_indicators(self._indicators))
+        except MargCalError as exc:
+            pred = math.inf
+            log.warning("%s: validator failed: %s", self.sensor, exc)
+        self._predicted = pred
+        thr = self.threshold
+        if not pred <= thr:
+            self._last_reason = (f"{pct(self.coverage)} coverage, predicted error {pct(pred)} > {pct(thr)}: "
+                                 "turn the sensor through the directions not yet covered")
+            events = [Event(EventKind.REJECTED, t, self.sensor, f"not fitted: {self._last_reason}")] if force else []
+            if self._cal is None or self._changed:
+                events += self._set_state(State.COLLECTING, t)
+            return events, None
+        events = []
+        if self._cal is None or self._changed:
+            events += self._set_state(State.READY, t)
+        return events, self._fit_job(t)
+
+    @property
+    def threshold(self) -> float:
+        """The predicted-error threshold in use (config override or the validator's)."""
+        if self.config.max_predicted_error is not None:
+            return self.config.max_predicted_error
+        thr = getattr(self.validator, "threshold", None)
+        return float(thr) if thr is not None else 0.01
+
+    @property
+    def coverage(self) -> float:
+        """Fraction of direction bins holding at least one sample (0..1)."""
+        return float(self._buffer.coverage())
+
+    def _fit_job(self, t: float) -> dict[str, Any]:
+        """A snapshot of what the fit needs (the fit itself may then run without the lock)."""
+        return {"t": t, "points": self._buffer.points(), "recent": self._recent_points(), "current": self._cal,
+                "config": self.config, "buffer": self._buffer, "changes": self.changes}
+
+    def _fit_compute(self, job: dict[str, Any]) -> tuple[Calibration | None, str]:
+        """The fit and its guard rails on a snapshot: (calibration, "") or (None, the reason)."""
+        cfg: PipelineConfig = job["config"]
+        pts = job["points"]
+        try:
+            scale = None
+            if cfg.f_scale_rel is not None:
+                ref = cfg.reference_norm or float(np.median(np.linalg.norm(pts - pts.mean(axis=0), axis=1)))
+                scale = cfg.f_scale_rel * ref
+            cal = fit(pts, model=cfg.model, method=cfg.method, norm=cfg.reference_norm, loss=cfg.loss,
+                      f_scale=scale, init="lin_auto", max_iter=cfg.max_iter, sensor=self.sensor, unit=cfg.unit)
+            cal = cal.replace(stamp=job["t"])
+            reason = guard_rails(cal, cfg, job["recent"], job["current"])
+        except (ValueError, ArithmeticError) as exc:  # MargCalError is a ValueError, as is LinAlgError
+            return None, f"fit failed: {exc}"
+        return (None, reason) if reason else (cal, "")
+
+    def _fit_finish(self, job: dict[str, Any], result: tuple[Calibration | None, str]) -> list[Event]:
+        """Install the fit (or report its rejection) unless the data it saw went stale meanwhile."""
+        t = job["t"]
+        if self._buffer is not job["buffer"] or self.changes != job["changes"] or self._cal is not job["current"]:
+            log.debug("%s: fit from t=%.2f s dropped: reset, change or new calibration meanwhile", self.sensor, t)
+            return []
+        cal, reason = result
+        if cal is None:
+            return self._reject(t, reason)
+        self._install(cal)
+        self._last_full = self._signature()
+        self.fits_accepted += 1
+        self._last_rejection = ""
+        assert cal.stats is not None
+        msg = (f"calibrated from {len(job['points'])} samples: residual {pct(cal.stats.rms_relative)}, "
+               f"offset {np.array2string(cal.offset, precision=4)}")
+        log.info("%s: %s", self.sensor, msg)
+        return [*self._set_state(State.CALIBRATED, t), Event(EventKind.CALIBRATED, t, self.sensor, msg, cal)]
+
+    def _recent_points(self) -> Array:
+        pts = np.array(self._recent_v, dtype=np.float64).reshape(-1, 3)
+        if self._changed and self._change_onset is not None:
+            pts = pts[np.asarray(self._recent_t) >= self._change_onset]
+        return pts
+
+    def _reject(self, t: float, reason: str) -> list[Event]:
+        self.fits_rejected += 1
+        self._last_rejection = reason
+        self._last_reason = reason
+        log.info("%s: fit rejected: %s", self.sensor, reason)
+        events = [Event(EventKind.REJECTED, t, self.sensor, f"fit rejected: {reason}")]
+        if self._cal is None:
+            events += self._set_state(State.REJECTED, t)
+        elif self._changed:
+            events += self._set_state(State.COLLECTING, t)
+        return events
