@@ -1,11 +1,12 @@
 """The calibration model: the calibration value, its errors and the ellipsoid fits.
 
 The value ``Calibration`` (h = W (v - b), Camps et al. 2009 Eq. 2, norm |h|) and its YAML file
-(``calibration_file``); the fits of ``fitting`` (``sphere`` and ``lin_auto``: Gietzelt et al. 2013,
-Eqs. 5-17, in ``fitting_linear``; ``lm``: Camps et al. 2009, Eqs. 6-12, with ``fitting_core`` holding
-the shared Gauss-Newton pieces), the MAP fit with a prior that updates only what the data determine
-(``fitting_prior``) and the heading error predicted from a calibration's covariance (``heading``).
-Everything else builds on this package; it imports nothing of the rest.
+(``calibration_file``, strict field readers in ``fields``); the fits of ``fitting``: ``sphere`` and
+``lin_auto`` (Gietzelt et al. 2013, Eqs. 5-17, in ``fitting_linear``), ``lm`` (Camps et al. 2009,
+Eqs. 6-12), with ``fitting_core`` holding the shared Gauss-Newton pieces; the MAP fit with a prior
+that updates only what the data determine (``fitting_prior``) and the heading error predicted from a
+calibration's covariance (``heading``). Everything else builds on this package; it imports nothing of
+the rest.
 """
 
 from __future__ import annotations

@@ -31,6 +31,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .errors import CalibrationFileError, InputError, as_vector3
+from .fields import MAX_ABS, MIN_NORM, number, numbers, show, stats_fields, string, strings
 
 __all__ = ["MODELS", "Calibration", "FitStats"]
 
@@ -68,6 +69,10 @@ class FitStats:
             "iterations": iterations, "converged": converged, "cost": cost,
         })  # fmt: skip
         return stats
+
+
+_STAT_NAMES = frozenset(f.name for f in dataclasses.fields(FitStats))
+"""The fields of FitStats, for the strict reader of a file's ``stats`` block."""
 
 
 def _as_matrix(x: ArrayLike, name: str) -> Array:
@@ -322,7 +327,7 @@ class Calibration:
             raise CalibrationFileError(msg)
         version = d.get("format_version")
         if type(version) is not int or version < 1:
-            msg = f"calibration entry has no integer format_version >= 1 (got {_show(version)}): not a ros_margcal calibration"
+            msg = f"calibration entry has no integer format_version >= 1 (got {show(version)}): not a ros_margcal calibration"
             raise CalibrationFileError(msg)
         if version > cls.FORMAT_VERSION:
             msg = (
@@ -331,112 +336,27 @@ class Calibration:
             )
             raise CalibrationFileError(msg)
         try:
-            names = _strings(d.get("parameter_names", []), "parameter_names")
+            names = strings(d.get("parameter_names", []), "parameter_names")
             cov = None
             if "covariance" in d:
-                cov = np.array(_numbers(d["covariance"], "covariance", len(names) ** 2, _MAX_ABS**2)).reshape(len(names), -1)
-            norm = _number(d.get("norm"), "norm")
-            if norm < _MIN_NORM:
-                msg = f"field 'norm' must be in [{_MIN_NORM:.0e}, {_MAX_ABS:.0e}], got {norm!r}"
+                cov = np.array(numbers(d["covariance"], "covariance", len(names) ** 2, MAX_ABS**2)).reshape(len(names), -1)
+            norm = number(d.get("norm"), "norm")
+            if norm < MIN_NORM:
+                msg = f"field 'norm' must be in [{MIN_NORM:.0e}, {MAX_ABS:.0e}], got {norm!r}"
                 raise CalibrationFileError(msg)
             return cls(
-                offset=np.array(_numbers(d.get("offset"), "offset", 3)),
-                matrix=np.array(_numbers(d.get("matrix"), "matrix", 9)),
+                offset=np.array(numbers(d.get("offset"), "offset", 3)),
+                matrix=np.array(numbers(d.get("matrix"), "matrix", 9)),
                 norm=norm,
-                model=_string(d.get("model", "sym"), "model"),
-                method=_string(d.get("method", ""), "method"),
-                sensor=_string(d.get("sensor", ""), "sensor"),
-                unit=_string(d.get("unit", ""), "unit"),
-                stats=_stats(d["stats"]) if "stats" in d else None,
+                model=string(d.get("model", "sym"), "model"),
+                method=string(d.get("method", ""), "method"),
+                sensor=string(d.get("sensor", ""), "sensor"),
+                unit=string(d.get("unit", ""), "unit"),
+                stats=FitStats(**stats_fields(d["stats"], _STAT_NAMES)) if "stats" in d else None,
                 covariance=cov,
                 parameter_names=names,
-                stamp=_number(d.get("stamp", 0.0), "stamp"),
+                stamp=number(d.get("stamp", 0.0), "stamp"),
             )
         except (CalibrationFileError, InputError) as exc:
             msg = f"calibration entry is malformed: {exc}"
             raise CalibrationFileError(msg) from exc
-
-
-_MAX_ABS = 1e12  # no offset, matrix entry, norm or stamp in any unit comes near this: a larger one is a corrupt file
-_MIN_NORM = 1e-12  # the smallest plausible field norm (tesla is 1e-5 .. 1e-4)
-_STAT_INTS = ("n_points", "iterations")
-_STAT_FLOATS = ("rms", "max_abs", "rms_relative", "cost")
-
-
-def _show(x: Any) -> str:
-    """A short repr for a message (a hostile value may be huge)."""
-    text = repr(x)
-    return text if len(text) <= 60 else text[:57] + "..."
-
-
-def _number(x: Any, name: str, limit: float = _MAX_ABS) -> float:
-    """A YAML number (int or float, not a bool or a string), finite and at most ``limit`` in magnitude."""
-    if isinstance(x, bool) or not isinstance(x, int | float):
-        msg = f"field {name!r} must be a number, got {type(x).__name__} {_show(x)}"
-        raise CalibrationFileError(msg)
-    try:
-        value = float(x)
-    except OverflowError:
-        value = math.inf
-    if not abs(value) <= limit:
-        msg = f"field {name!r} must be finite and at most {limit:.0e} in magnitude, got {_show(x)}"
-        raise CalibrationFileError(msg)
-    return value
-
-
-def _numbers(x: Any, name: str, size: int, limit: float = _MAX_ABS) -> list[float]:
-    """A flat list of ``size`` numbers (a 3x3 matrix may also be three rows of three)."""
-    if isinstance(x, list) and size == 9 and len(x) == 3 and all(isinstance(r, list) and len(r) == 3 for r in x):
-        x = [v for row in x for v in row]
-    if not isinstance(x, list) or len(x) != size:
-        got = f"{len(x)} items" if isinstance(x, list) else f"{type(x).__name__} {_show(x)}"
-        msg = f"field {name!r} must be a list of {size} numbers, got {got}"
-        raise CalibrationFileError(msg)
-    return [_number(v, f"{name}[{i}]", limit) for i, v in enumerate(x)]
-
-
-def _string(x: Any, name: str) -> str:
-    if not isinstance(x, str):
-        msg = f"field {name!r} must be a string, got {type(x).__name__} {_show(x)}"
-        raise CalibrationFileError(msg)
-    return x
-
-
-def _strings(x: Any, name: str) -> tuple[str, ...]:
-    if not isinstance(x, list):
-        msg = f"field {name!r} must be a list of strings, got {type(x).__name__} {_show(x)}"
-        raise CalibrationFileError(msg)
-    return tuple(_string(v, f"{name}[{i}]") for i, v in enumerate(x))
-
-
-def _stats(x: Any) -> FitStats:
-    """The ``stats`` block: FitStats' fields with their types, counts and spreads non-negative."""
-    if not isinstance(x, dict):
-        msg = f"field 'stats' must be a mapping, got {type(x).__name__} {_show(x)}"
-        raise CalibrationFileError(msg)
-    known = {f.name for f in dataclasses.fields(FitStats)}
-    unknown = sorted(map(str, set(x) - known))
-    missing = sorted({"n_points", "rms", "max_abs", "rms_relative"} - set(x))
-    if unknown or missing:
-        msg = f"field 'stats' has unknown keys {unknown} or lacks {missing}"
-        raise CalibrationFileError(msg)
-    values: dict[str, Any] = {}
-    for key in _STAT_INTS:
-        if key in x:
-            v = x[key]
-            if type(v) is not int or v < 0:
-                msg = f"field 'stats.{key}' must be a non-negative integer, got {_show(v)}"
-                raise CalibrationFileError(msg)
-            values[key] = v
-    for key in _STAT_FLOATS:
-        if key in x:
-            values[key] = _number(x[key], f"stats.{key}", _MAX_ABS**2)
-            if values[key] < 0:
-                msg = f"field 'stats.{key}' must be non-negative, got {_show(x[key])}"
-                raise CalibrationFileError(msg)
-    if "converged" in x:
-        if not isinstance(x["converged"], bool):
-            msg = f"field 'stats.converged' must be true or false, got {_show(x['converged'])}"
-            raise CalibrationFileError(msg)
-        values["converged"] = x["converged"]
-    return FitStats(**values)
