@@ -472,12 +472,18 @@ class SensorCalibrator:
                 msg = (f"collecting: {pct(self.coverage)} coverage, "
                        f"predicted error {pct(self._predicted)} > {pct(self.threshold)}")
             elif self.passed == 0 and self.seen:
-                worst = max(self.dropped, key=lambda k: self.dropped[k])
-                msg = f"collecting: every sample dropped so far ({self.dropped[worst]} x {worst})"
+                msg = f"collecting: every sample dropped so far: {self._intake.drop_summary()}"
             elif self.kept == 0 and self._gate is not None:
-                msg = "collecting: no still sample from the inactivity gate yet (hold the sensor still in a few poses)"
+                msg = (f"collecting: no still sample from the inactivity gate yet: {self.passed} samples reached it, "
+                       f"none in a still {self.config.gate_window_s:g} s window (CV of |a| <= "
+                       f"{self.config.gate_cv_threshold:g}); hold the sensor still in a few poses")
             else:
                 msg = f"collecting: {self._last_reason}"
+            dropped = sum(self.dropped.values())
+            if self.passed and 2 * dropped > self.seen:
+                msg += f"; {self._intake.drop_summary()}"
+        if self._intake.learnt:
+            msg += f"; {self._intake.learnt}"
         if self._time_base_note:
             msg += f"; {self._time_base_note}"
         ind = self._indicators
