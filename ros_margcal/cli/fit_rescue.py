@@ -77,8 +77,18 @@ def config_for(sensor: str, unit: str) -> PipelineConfig:
 
 
 def check(cal: Calibration, cfg: PipelineConfig | None) -> str:
-    """Why ``cal`` is implausible ("" when it is not, or when there is no configuration to judge it)."""
-    return "" if cfg is None else plausibility(cal, cfg)
+    """Why ``cal`` is implausible ("" when it is not, or when there is no configuration to judge it).
+
+    The residual limit of the online calibrator (``max_residual``, 5 % of the field for the
+    magnetometer) and ``plausibility``.
+    """
+    if cfg is None:
+        return ""
+    st = cal.stats
+    if st is not None and not st.rms_relative <= cfg.max_residual:
+        return (f"residual RMS {100 * st.rms_relative:.3g} % > limit {100 * cfg.max_residual:.3g} %: "
+                "one calibration does not explain the recording")
+    return plausibility(cal, cfg)
 
 
 def _spread(points: Array) -> float:
