@@ -42,7 +42,7 @@ from ..model.fitting import LOSSES, METHODS, SUPPORTED
 from .units import ACCEL_UNITS, GRAVITY, LEARN_SAMPLES, MAG_UNITS, unit_scale
 
 __all__ = ["ACCEL_UNITS", "FIELD_SPECS", "GRAVITY", "MAG_UNITS", "FieldSpec", "PipelineConfig", "guard_rails",
-           "plausibility"]
+           "plausibility", "rms_relative"]
 
 EARTH_FIELD_RANGE_T = (20e-6, 70e-6)
 """Plausible geomagnetic field strength, tesla."""
@@ -289,7 +289,10 @@ FIELD_SPECS: dict[str, FieldSpec] = {
 """The type and range of every ``PipelineConfig`` field (``checked`` refuses a field missing here)."""
 
 
-def _rms_rel(cal: Calibration, pts: NDArray[np.float64]) -> float:
+def rms_relative(cal: Calibration, pts: NDArray[np.float64]) -> float:
+    """RMS of ``|W (v - b)| - norm`` over ``norm`` on ``pts`` (0 for no points)."""
+    if not len(pts):
+        return 0.0
     e = cal.norm_error(pts) / cal.norm
     return float(np.sqrt(np.mean(e * e)))
 
@@ -306,7 +309,7 @@ def guard_rails(cal: Calibration, cfg: PipelineConfig, recent: NDArray[np.float6
     if reason:
         return reason
     if current is not None and len(recent) >= 3:
-        new_rms, cur_rms = _rms_rel(cal, recent), _rms_rel(current, recent)
+        new_rms, cur_rms = rms_relative(cal, recent), rms_relative(current, recent)
         if new_rms > cur_rms * (1.0 + cfg.not_worse_tolerance):
             return (f"worse than the current calibration on the last {len(recent)} samples "
                     f"({100 * new_rms:.2f} % vs {100 * cur_rms:.2f} %)")

@@ -141,3 +141,42 @@ def test_real_counts_read_as_tesla_say_why(real_data_dir: Path) -> None:
     st = out["calibrators"]["mag"].status()
     assert st.samples_passed == 0
     assert f"{st.samples_seen} of {st.samples_seen} samples dropped" in st.message and "set --unit" in st.message
+
+
+# -- a change must be a change ----------------------------------------------------------------------
+
+
+def test_a_calibration_poor_in_unseen_directions_is_not_a_change(independent: ModuleType) -> None:
+    """A loaded calibration 0.15 field norms off in z: the residual rises as new directions come, but one
+    refitted calibration explains buffer and window, so no change is declared and the fit is replaced."""
+    rec = independent.generate("mag", "tumble", duration_s=60.0, rate_hz=50.0, seed=21)
+    truth = rec["truth"]
+    stale = Calibration(truth["offset"] + np.array([0.0, 0.0, 0.15]) * truth["norm"], truth["W_sym"], truth["norm"],
+                        model="sym", sensor="mag", unit="T")
+    cal = SensorCalibrator("mag", calibration=stale)
+    events = []
+    for t, v in zip(rec["t"], rec["xyz"], strict=True):
+        events += cal.push(float(t), v)
+    assert cal.changes == 0 and not [e for e in events if e.kind is EventKind.CHANGED]
+    verdicts = [e.message for e in events if e.kind is EventKind.CALIBRATED and "no sensor change" in e.message]
+    assert len(verdicts) == 1
+    assert "old calibration: median" in verdicts[0] and "one calibration refitted" in verdicts[0]
+    assert _offset_error(cal, rec) < 0.005
+
+
+def test_a_real_hard_iron_step_is_still_a_change_and_says_both_hypotheses(independent: ModuleType) -> None:
+    """A hard-iron step of 0.15 field norms: one calibration leaves several times the noise, so it is a change;
+    the event names both hypotheses and the next calibration describes the new offset."""
+    rec = independent.generate("mag", "tumble", duration_s=120.0, rate_hz=50.0, seed=21, effect="hard_iron_jump",
+                               magnitude=0.15)
+    cal = SensorCalibrator("mag")
+    events = []
+    for t, v in zip(rec["t"], rec["xyz"], strict=True):
+        events += cal.push(float(t), v)
+    changed = [e.message for e in events if e.kind is EventKind.CHANGED]
+    assert cal.changes == 1 and len(changed) == 1
+    assert "old calibration: median" in changed[0] and "one calibration refitted" in changed[0]
+    assert "tolerance" in changed[0]
+    assert cal.calibration is not None
+    truth = rec["truth"]
+    assert np.linalg.norm(cal.calibration.offset - truth["offset_after"]) < 0.01 * truth["norm"]
