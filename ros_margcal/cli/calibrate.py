@@ -33,7 +33,7 @@ from ..model.fitting import LOSSES, METHODS, SUPPORTED, fit
 from ..recordings.read import read_recording
 from .fit_rescue import Rescue, check, config_for, heading_text, rescue
 
-__all__ = ["register", "run"]
+__all__ = ["register", "run", "still_samples"]
 
 _DEFAULT_MODEL = {"sphere": "eye", "lin_auto": "diag"}
 
@@ -85,7 +85,7 @@ def register(subparsers: Any) -> None:
     p.set_defaults(func=run)  # fmt: skip
 
 
-def _still_samples(rec: Any) -> np.ndarray:
+def still_samples(rec: Any) -> np.ndarray:
     """Averaged still samples of an accelerometer stream through the inactivity gate (Gietzelt Sec. 2.4)."""
 
     gate = InactivityGate()
@@ -141,7 +141,7 @@ def run(args: argparse.Namespace) -> int:
     rec = read_recording(args.input, sensor=args.sensor, topic=args.topic)
     sensor = args.sensor or rec.sensor or ""
     use_still = args.samples == "still" or (args.samples == "auto" and sensor == "accel")
-    points = _still_samples(rec) if use_still else np.asarray(rec.raw, dtype=np.float64)
+    points = still_samples(rec) if use_still else np.asarray(rec.raw, dtype=np.float64)
     if use_still:
         print(f"inactivity gate: {len(points)} still samples from {len(rec.t)} readings", file=sys.stderr)
     model = args.model or _DEFAULT_MODEL.get(args.method, "sym")

@@ -41,6 +41,7 @@ Array = NDArray[np.float64]
 STATIC_SPREAD = 0.03
 """RMS distance of the readings from their mean, over their mean norm, below which a recording is static
 (an HMC5883L at rest: 0.2 %; a full turn with an offset of 10 field norms: about 10 %)."""
+_MIN_POINTS = 10  # fewer samples than this are not fitted at all
 _PRIOR_POINTS = 6000  # the prior fit runs on at most this many evenly spaced samples
 
 
@@ -152,7 +153,7 @@ def _segment(t: Array, points: Array, label: str, depth: int, kw: dict[str, obje
     unit = str(kw["unit"])
     stamp = float(t[-1]) if len(t) else 0.0
     spread = _spread(points) if n else 0.0
-    if n < 10 or spread < STATIC_SPREAD:
+    if n < _MIN_POINTS or spread < STATIC_SPREAD:
         return [Part(label, None, n, note=f"static ({100 * spread:.2g} % spread): no calibration")]
     cfg = kw["cfg"]
     try:
@@ -189,6 +190,9 @@ def rescue(t: Array | None, points: Array, *, failure: str, model: str, norm: fl
     pts = np.asarray(points, dtype=np.float64)
     stamp = float(t[-1]) if t is not None and len(t) else 0.0
     u = f" {unit}" if unit else ""
+    if len(pts) < _MIN_POINTS:
+        reason = f"only {len(pts)} samples: too few for any calibration (need {_MIN_POINTS})"
+        return Rescue("too few", reason, lines=[f"requested fit: {failure}", reason])
     spread = _spread(pts)
     if spread < STATIC_SPREAD:
         level = float(np.median(np.linalg.norm(pts, axis=1)))
