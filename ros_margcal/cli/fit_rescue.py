@@ -32,15 +32,12 @@ from ..model.errors import ConvergenceError, DegenerateDataError, InputError
 from ..model.fitting import fit
 from ..model.fitting_prior import PriorFit, broad_prior, fit_with_prior
 from ..model.heading import heading_p95
-from ..stream.config import PipelineConfig, plausibility
+from ..stream.config import STATIC_SPREAD, PipelineConfig, plausibility
 
 __all__ = ["STATIC_SPREAD", "Part", "Rescue", "check", "config_for", "heading_text", "rescue"]
 
 Array = NDArray[np.float64]
 
-STATIC_SPREAD = 0.03
-"""RMS distance of the readings from their mean, over their mean norm, below which a recording is static
-(an HMC5883L at rest: 0.2 %; a full turn with an offset of 10 field norms: about 10 %)."""
 _MIN_POINTS = 10  # fewer samples than this are not fitted at all
 _PRIOR_POINTS = 6000  # the prior fit runs on at most this many evenly spaced samples
 

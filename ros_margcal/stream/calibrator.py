@@ -64,7 +64,7 @@ from ..model.calibration import Calibration
 from ..model.errors import ConfigError, MargCalError
 from ..model.fitting import fit
 from ..validation.shipped import default_validator
-from .config import PipelineConfig, guard_rails
+from .config import STATIC_SPREAD, PipelineConfig, guard_rails
 from .intake import DROP_REASONS, Intake
 from .status import Event, EventKind, Level, State, Status, pct
 
@@ -500,6 +500,18 @@ class SensorCalibrator:
         e = self._cal.norm_error(pts) / self._cal.norm
         return float(np.sqrt(np.mean(e * e)))
 
+    def _static_note(self) -> str:
+        """"; the sensor has not turned ..." when the recent samples stay within ``STATIC_SPREAD`` of their mean."""
+        pts = np.array(self._recent_v, dtype=np.float64).reshape(-1, 3)
+        if len(pts) < self.config.change_window:
+            return ""
+        level = float(np.median(np.linalg.norm(pts, axis=1)))
+        spread = float(np.sqrt(np.mean(np.sum((pts - pts.mean(axis=0)) ** 2, axis=1)))) / max(level, 1e-300)
+        if spread >= STATIC_SPREAD:
+            return ""
+        return (f"; the sensor has not turned: the last {len(pts)} samples stay within {pct(spread)} of their mean "
+                "(static: they fix the field norm only); turn it through all directions")
+
     def status(self, now: float | None = None) -> Status:
         """The status at message time ``now`` (default: the last sample's time)."""
         t = self._t if now is None else float(now)
@@ -524,12 +536,16 @@ class SensorCalibrator:
             elif self._predicted is not None:
                 msg = (f"collecting: {pct(self.coverage)} coverage, "
                        f"predicted error {pct(self._predicted)} > {pct(self.threshold)}")
+                msg += self._static_note()
             elif self.passed == 0 and self.seen:
                 msg = f"collecting: every sample dropped so far: {self._intake.drop_summary()}"
             elif self.kept == 0 and self._gate is not None:
+                cv, axis = self._gate.window_stats
+                last = f", last window CV {cv:.2g}, axis spread {axis:.2g}" if math.isfinite(cv) else ""
                 msg = (f"collecting: no still sample from the inactivity gate yet: {self.passed} samples reached it, "
                        f"none in a still {self.config.gate_window_s:g} s window (CV of |a| <= "
-                       f"{self.config.gate_cv_threshold:g}); hold the sensor still in a few poses")
+                       f"{self.config.gate_cv_threshold:g}{last}); hold the sensor still in a few poses, or raise "
+                       f"{self.sensor}.gate_cv_threshold for a noisy sensor")
             else:
                 msg = f"collecting: {self._last_reason}"
             dropped = sum(self.dropped.values())

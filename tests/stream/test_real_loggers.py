@@ -180,3 +180,12 @@ def test_a_real_hard_iron_step_is_still_a_change_and_says_both_hypotheses(indepe
     assert cal.calibration is not None
     truth = rec["truth"]
     assert np.linalg.norm(cal.calibration.offset - truth["offset_after"]) < 0.01 * truth["norm"]
+
+
+def test_a_static_magnetometer_says_it_has_not_turned(independent: ModuleType) -> None:
+    """A sensor at rest: the status says the samples fix the norm only, instead of a coverage figure alone."""
+    rec = independent.generate("mag", "static", duration_s=30.0, rate_hz=50.0, seed=4)
+    cal, _ = _run(rec, "T")
+    msg = cal.status().message
+    assert cal.calibration is None
+    assert "the sensor has not turned: the last 500 samples stay within" in msg and "field norm only" in msg
