@@ -10,7 +10,7 @@ objects (the node and the replay hand over what a message or a file held):
 - NaN or ±Inf, also a Python int beyond the float range, is ``nonfinite``; a norm at most
   ``min_magnitude`` is ``zero``, above ``max_magnitude`` ``magnitude`` (the last offending norm is kept
   in ``last_magnitude`` for the status). With ``learn_magnitude_samples`` > 0 (a unit without a known
-  scale, such as counts) the first that many samples pass with any finite non-zero norm and their
+  scale, such as counts) the first that many samples pass with any non-zero norm up to ``max_magnitude`` and their
   median norm ``m`` sets the limits to ``[units.LEARN_LOW m, units.LEARN_HIGH m]`` (``learnt`` says so).
 - Stamps, the time base: a sample is on the current time base when its step from the last one is in
   ``(0, max_stamp_gap_s]``. An equal stamp is ``repeated_stamp``. A sample off the time base
@@ -177,7 +177,7 @@ class Intake:
         mag = math.sqrt(x * x + y * y + z * z)
         cfg = self.config
         learning = self.learning
-        lo, hi = (0.0, math.inf) if learning else self.limits
+        lo, hi = (0.0, cfg.max_magnitude) if learning else self.limits
         if mag <= lo:
             self.last_magnitude = mag
             return "zero"
