@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from ros_margcal.cli.calibrate import still_samples
-from ros_margcal.cli.fit_rescue import check, config_for, rescue
+from ros_margcal.cli.fit_rescue import check, config_for, rescue, residual_note
 from ros_margcal.model.calibration import Calibration
 from ros_margcal.model.errors import ConvergenceError, DegenerateDataError, RecordingError
 from ros_margcal.model.fitting import fit
@@ -77,13 +77,15 @@ def batch(path: Path, sensor: str, unit: str) -> tuple[Calibration | None, str]:
     cfg = config_for(sensor, unit)
     try:
         cal = fit(pts, model="sym", method="lm", sensor=sensor, unit=unit)
-        why = check(cal, cfg)
+        why, high = check(cal, cfg), residual_note(cal, cfg)
     except (ConvergenceError, DegenerateDataError) as exc:
-        cal, why = None, str(exc)
-    if not why:
+        cal, why, high = None, str(exc), ""
+    if not why and not high:
         return cal, "lm"
-    res = rescue(None if sensor == "accel" else np.asarray(rec.t, dtype=np.float64), pts, failure=why, model="sym",
-                 norm=None, loss="linear", sensor=sensor, unit=unit, cfg=cfg)
+    res = rescue(None if sensor == "accel" else np.asarray(rec.t, dtype=np.float64), pts, failure=why or high,
+                 model="sym", norm=None, loss="linear", sensor=sensor, unit=unit, cfg=cfg, change_only=not why)
+    if res is None:
+        return cal, f"lm, warning: {high.split(':')[0]}"
     fitted = [p for p in res.parts if p.calibration is not None]
     if not fitted:
         return None, f"{res.kind}: refused"

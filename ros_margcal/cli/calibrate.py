@@ -31,7 +31,7 @@ from ..model.calibration_file import save_calibrations
 from ..model.errors import ConvergenceError, DegenerateDataError, RecordingError
 from ..model.fitting import LOSSES, METHODS, SUPPORTED, fit
 from ..recordings.read import read_recording
-from .fit_rescue import Rescue, check, config_for, heading_text, rescue
+from .fit_rescue import Rescue, check, config_for, heading_text, rescue, residual_note
 
 __all__ = ["register", "run", "still_samples"]
 
@@ -151,17 +151,21 @@ def run(args: argparse.Namespace) -> int:
         cal = fit(points, model=model, method=args.method, norm=args.norm, loss=args.loss, f_scale=args.f_scale,
                   sensor=sensor, unit=unit)  # fmt: skip
         failure = check(cal, cfg)
+        high = residual_note(cal, cfg)
     except (ConvergenceError, DegenerateDataError) as exc:
         if args.no_rescue:
             raise
-        cal, failure = None, str(exc)
-    if failure and not args.no_rescue:
+        cal, failure, high = None, str(exc), ""
+    if (failure or high) and not args.no_rescue:
         times = None if use_still or rec.t is None else np.asarray(rec.t, dtype=np.float64)
-        res = rescue(times, points, failure=failure, model=model if model in SUPPORTED["lm"] else "sym",
-                     norm=args.norm, loss=args.loss, sensor=sensor, unit=unit, cfg=cfg)
-        return _report_rescue(res, args, sensor, len(rec.t))
-    if failure:
-        print(f"warning: the fit is implausible: {failure}", file=sys.stderr)
+        res = rescue(times, points, failure=failure or high, model=model if model in SUPPORTED["lm"] else "sym",
+                     norm=args.norm, loss=args.loss, sensor=sensor, unit=unit, cfg=cfg, change_only=not failure)
+        if res is not None:
+            return _report_rescue(res, args, sensor, len(rec.t))
+    for note in (failure, high):
+        if note:
+            print(f"warning: {note}" + ("" if failure else " (no offset change located: motion or disturbances?)"),
+                  file=sys.stderr)
     assert cal is not None
     if rec.t is not None and len(rec.t):
         cal = cal.replace(stamp=float(rec.t[-1]))

@@ -15,7 +15,9 @@ reason, in this order, and acts on it:
 
 A result is *implausible* when ``stream.config.plausibility`` says so (field norm outside the Earth
 field or gravity in a known unit, parameter uncertainty, offset limit, axis gains): the same limits
-the online calibrator applies before it publishes.
+the online calibrator applies before it publishes. A plausible fit whose residual exceeds the online
+limit (``residual_note``) is only searched for an offset change (``change_only``): without one the
+high residual is motion or disturbance, and the plain fit stands with a warning.
 """
 
 from __future__ import annotations
@@ -77,16 +79,19 @@ def config_for(sensor: str, unit: str) -> PipelineConfig:
 def check(cal: Calibration, cfg: PipelineConfig | None) -> str:
     """Why ``cal`` is implausible ("" when it is not, or when there is no configuration to judge it).
 
-    The residual limit of the online calibrator (``max_residual``, 5 % of the field for the
-    magnetometer) and ``plausibility``.
+    ``stream.config.plausibility``: the field norm in a known unit, the parameter uncertainty, the
+    offset and the axis gains.
     """
-    if cfg is None:
-        return ""
+    return "" if cfg is None else plausibility(cal, cfg)
+
+
+def residual_note(cal: Calibration, cfg: PipelineConfig | None) -> str:
+    """"" unless the residual exceeds the online calibrator's ``max_residual`` (5 % of the field for the magnetometer)."""
     st = cal.stats
-    if st is not None and not st.rms_relative <= cfg.max_residual:
-        return (f"residual RMS {100 * st.rms_relative:.3g} % > limit {100 * cfg.max_residual:.3g} %: "
-                "one calibration does not explain the recording")
-    return plausibility(cal, cfg)
+    if cfg is None or st is None or st.rms_relative <= cfg.max_residual:
+        return ""
+    return (f"residual RMS {100 * st.rms_relative:.3g} % > limit {100 * cfg.max_residual:.3g} %: "
+            "one calibration does not explain the recording")
 
 
 def _spread(points: Array) -> float:
@@ -174,7 +179,7 @@ def _segment(t: Array, points: Array, label: str, depth: int, kw: dict[str, obje
 
 
 def rescue(t: Array | None, points: Array, *, failure: str, model: str, norm: float | None, loss: str,
-           sensor: str, unit: str, cfg: PipelineConfig | None) -> Rescue:
+           sensor: str, unit: str, cfg: PipelineConfig | None, change_only: bool = False) -> Rescue | None:
     """Diagnose a failed or implausible fit of ``points`` (module docstring) and fit what can be fitted.
 
     Args:
@@ -183,10 +188,14 @@ def rescue(t: Array | None, points: Array, *, failure: str, model: str, norm: fl
         failure: why the requested fit was not accepted (the error or the plausibility message).
         model, norm, loss, sensor, unit: as for ``fitting.fit``.
         cfg: the limits that judge a fit (``config_for``), None for no plausibility check.
+        change_only: the fit itself is plausible, only its residual is high: look for an offset change
+            and return None when there is none (motion or disturbances, not a reason to refit).
     """
     pts = np.asarray(points, dtype=np.float64)
     stamp = float(t[-1]) if t is not None and len(t) else 0.0
     u = f" {unit}" if unit else ""
+    if change_only:
+        return _change(t, pts, failure, model=model, norm=norm, loss=loss, sensor=sensor, unit=unit, cfg=cfg)
     if len(pts) < _MIN_POINTS:
         reason = f"only {len(pts)} samples: too few for any calibration (need {_MIN_POINTS})"
         return Rescue("too few", reason, lines=[f"requested fit: {failure}", reason])
@@ -197,22 +206,9 @@ def rescue(t: Array | None, points: Array, *, failure: str, model: str, norm: fl
                   f"(|v| = {level:.4g}{u}); they determine the field norm only, not the offset or the matrix")
         return Rescue("static", reason, lines=[f"requested fit: {failure}", reason,
                                                "no calibration fitted: turn the sensor through all directions"])
-    if t is not None and len(t) == len(pts):
-        times = np.asarray(t, dtype=np.float64)
-        ch = locate_offset_change(times, pts)
-        if ch is not None:
-            before = times < ch.t
-            changes: list[float] = [ch.t]
-            kw: dict[str, object] = {"model": model, "norm": norm, "loss": loss, "sensor": sensor, "unit": unit,
-                                     "cfg": cfg, "changes": changes}
-            parts = (*_segment(times[before], pts[before], _span(times[before]), 1, kw),
-                     *_segment(times[~before], pts[~before], _span(times[~before]), 1, kw))
-            more = sorted(changes[1:])
-            also = f" (and at {', '.join(f'{c:.2f}' for c in more)} s)" if more else ""
-            reason = (f"the offset changed at t = {ch.t:.2f} s by {ch.step:.4g}{u} ({100 * ch.relative_step:.3g} % of "
-                      f"the field; the split removes {100 * ch.drop:.3g} % of one ellipsoid's residual){also}: the "
-                      f"recording holds {len(parts)} calibrations, fitted on each stretch")
-            return Rescue("change", reason, parts, ch, [f"requested fit: {failure}", reason])
+    found = _change(t, pts, failure, model=model, norm=norm, loss=loss, sensor=sensor, unit=unit, cfg=cfg)
+    if found is not None:
+        return found
     pf = _prior_fit(pts, norm, sensor, unit, stamp)
     reason = (f"partial coverage: the directions determine {', '.join(pf.updated) or 'no parameter'}; "
               f"{', '.join(pf.from_prior) or 'none'} kept from the broad prior ({_prior_text(pf)})")
@@ -223,6 +219,30 @@ def rescue(t: Array | None, points: Array, *, failure: str, model: str, norm: fl
 def _prior_text(pf: PriorFit) -> str:
     centred = bool(np.any(pf.prior.offset))
     return f"identity matrix, offset {'at the sphere-fit centre' if centred else 'zero'}, 5 field norms std"
+
+
+def _change(t: Array | None, pts: Array, failure: str, *, model: str, norm: float | None, loss: str, sensor: str,
+            unit: str, cfg: PipelineConfig | None) -> Rescue | None:
+    """The offset-change diagnosis: the stretches between located changes, each fitted; None without a change."""
+    u = f" {unit}" if unit else ""
+    if t is None or len(t) != len(pts) or len(pts) < _MIN_POINTS:
+        return None
+    times = np.asarray(t, dtype=np.float64)
+    ch = locate_offset_change(times, pts)
+    if ch is None:
+        return None
+    before = times < ch.t
+    changes: list[float] = [ch.t]
+    kw: dict[str, object] = {"model": model, "norm": norm, "loss": loss, "sensor": sensor, "unit": unit, "cfg": cfg,
+                             "changes": changes}
+    parts = (*_segment(times[before], pts[before], _span(times[before]), 1, kw),
+             *_segment(times[~before], pts[~before], _span(times[~before]), 1, kw))
+    more = sorted(changes[1:])
+    also = f" (and at {', '.join(f'{c:.2f}' for c in more)} s)" if more else ""
+    reason = (f"the offset changed at t = {ch.t:.2f} s by {ch.step:.4g}{u} ({100 * ch.relative_step:.3g} % of "
+              f"the field; the split removes {100 * ch.drop:.3g} % of one ellipsoid's residual){also}: the "
+              f"recording holds {len(parts)} calibrations, fitted on each stretch")
+    return Rescue("change", reason, parts, ch, [f"requested fit: {failure}", reason])
 
 
 def heading_text(cal: Calibration) -> str:
