@@ -124,3 +124,18 @@ def test_real_attached_magnet_is_located(real_data_dir: Path, tmp_path: Path, ca
     assert len(parts) >= 2
     # the magnet phase: the offset of the windowed sphere fits, about 58 uT along z
     assert any(abs(p["offset"][2] - 58.0) < 5.0 for p in parts)
+
+
+def test_motion_in_accelerometer_data_keeps_the_plain_fit_with_a_warning(independent: ModuleType, tmp_path: Path,
+                                                                          capsys: pytest.CaptureFixture[str]) -> None:
+    """All samples of a moving accelerometer: a high residual but no offset change, so the plain fit stands."""
+    rec = independent.generate("accel", "rest_and_move", duration_s=60.0, seed=3)
+    path = tmp_path / "acc.csv"
+    independent.write_csv(path, rec)
+    out = tmp_path / "fit.json"
+    rc = main(["calibrate", str(path), "--sensor", "accel", "--samples", "all", "--json", str(out)])
+    captured = capsys.readouterr()
+    assert rc == 0
+    assert "residual RMS" in captured.err and "no offset change located" in captured.err
+    assert "requested fit" not in captured.out
+    assert json.loads(out.read_text())["method"] == "lm"
