@@ -6,6 +6,13 @@ Examples::
     margcal calibrate run.mcap --sensor accel --norm 9.80665 --json fit.json
     margcal calibrate mag.csv --method lin_auto --model diag
     margcal calibrate disturbed.mcap --sensor mag --loss huber
+
+When the requested fit fails (does not converge, degenerate data) or its result is implausible (the
+online calibrator's limits: field norm in a known unit, parameter uncertainty, offset, gains), the
+command says why and fits what the data allow (``fit_rescue``): nothing on a static recording (exit
+code 3), one calibration per side of a located offset change, or the prior fit on partial coverage
+(which parameters were updated, which are from the prior), with the predicted heading error for a
+magnetometer. ``--no-rescue`` keeps the old behaviour (the error).
 """
 
 from __future__ import annotations
@@ -21,11 +28,12 @@ import numpy as np
 from ..coverage.gate import InactivityGate
 from ..model.calibration import MODELS, Calibration
 from ..model.calibration_file import save_calibrations
-from ..model.errors import RecordingError
+from ..model.errors import ConvergenceError, DegenerateDataError, RecordingError
 from ..model.fitting import LOSSES, METHODS, SUPPORTED, fit
 from ..recordings.read import read_recording
+from .fit_rescue import Rescue, check, config_for, heading_text, rescue, residual_note
 
-__all__ = ["register", "run"]
+__all__ = ["register", "run", "still_samples"]
 
 _DEFAULT_MODEL = {"sphere": "eye", "lin_auto": "diag"}
 
@@ -71,10 +79,13 @@ def register(subparsers: Any) -> None:
     p.add_argument("--unit", default=None, help="unit of the calibrated output (default: the recording's unit)")
     p.add_argument("-o", "--output", type=Path, default=None, help="write the calibration as ros__parameters YAML")
     p.add_argument("--json", type=Path, default=None, help="write the result (parameters, std, stats) as JSON")
+    p.add_argument("--no-rescue", action="store_true",
+                   help="when the fit fails or is implausible, stop with the error instead of diagnosing why "
+                   "and fitting what the data determine (static: nothing; a change: each side; partial: the prior fit)")
     p.set_defaults(func=run)  # fmt: skip
 
 
-def _still_samples(rec: Any) -> np.ndarray:
+def still_samples(rec: Any) -> np.ndarray:
     """Averaged still samples of an accelerometer stream through the inactivity gate (Gietzelt Sec. 2.4)."""
 
     gate = InactivityGate()
@@ -105,7 +116,8 @@ def _print(cal: Calibration, source: str, n_read: int) -> None:
     unit = f" {cal.unit}" if cal.unit else ""
     print(f"{cal.sensor or 'sensor'} calibration of {source}: model {cal.model}, method {cal.method}, "
           f"{cal.stats.n_points if cal.stats else '?'} of {n_read} samples")  # fmt: skip
-    print(f"  norm     {cal.norm:.6g}{unit}" + (f" +- {std['norm']:.2g}" if "norm" in std else " (given)"))
+    fixed = " (the prior's, fixed)" if cal.method == "map" else " (given)"
+    print(f"  norm     {cal.norm:.6g}{unit}" + (f" +- {std['norm']:.2g}" if "norm" in std else fixed))
     for i, axis in enumerate("xyz"):
         s = std.get(f"b_{axis}")
         print(f"  offset {axis} {cal.offset[i]:>13.6g}" + (f" +- {s:.2g}" if s is not None else ""))
@@ -129,22 +141,81 @@ def run(args: argparse.Namespace) -> int:
     rec = read_recording(args.input, sensor=args.sensor, topic=args.topic)
     sensor = args.sensor or rec.sensor or ""
     use_still = args.samples == "still" or (args.samples == "auto" and sensor == "accel")
-    points = _still_samples(rec) if use_still else np.asarray(rec.raw, dtype=np.float64)
+    points = still_samples(rec) if use_still else np.asarray(rec.raw, dtype=np.float64)
     if use_still:
         print(f"inactivity gate: {len(points)} still samples from {len(rec.t)} readings", file=sys.stderr)
     model = args.model or _DEFAULT_MODEL.get(args.method, "sym")
     unit = args.unit if args.unit is not None else (rec.unit or "")
-    cal = fit(points, model=model, method=args.method, norm=args.norm, loss=args.loss, f_scale=args.f_scale,
-              sensor=sensor, unit=unit)  # fmt: skip
+    cfg = config_for(sensor, unit) if sensor in ("mag", "accel") else None
+    try:
+        cal = fit(points, model=model, method=args.method, norm=args.norm, loss=args.loss, f_scale=args.f_scale,
+                  sensor=sensor, unit=unit)  # fmt: skip
+        failure = check(cal, cfg)
+        high = residual_note(cal, cfg)
+    except (ConvergenceError, DegenerateDataError) as exc:
+        if args.no_rescue:
+            raise
+        cal, failure, high = None, str(exc), ""
+    if (failure or high) and not args.no_rescue:
+        times = None if use_still or rec.t is None else np.asarray(rec.t, dtype=np.float64)
+        res = rescue(times, points, failure=failure or high, model=model if model in SUPPORTED["lm"] else "sym",
+                     norm=args.norm, loss=args.loss, sensor=sensor, unit=unit, cfg=cfg, change_only=not failure)
+        if res is not None:
+            return _report_rescue(res, args, sensor, len(rec.t))
+    for note in (failure, high):
+        if note:
+            print(f"warning: {note}" + ("" if failure else " (no offset change located: motion or disturbances?)"),
+                  file=sys.stderr)
+    assert cal is not None
     if rec.t is not None and len(rec.t):
         cal = cal.replace(stamp=float(rec.t[-1]))
     _print(cal, str(args.input), len(rec.t))
+    _write(args, {sensor or "sensor": cal}, [result_dict(cal, str(args.input), len(rec.t))])
+    return 0
+
+
+def _write(args: argparse.Namespace, cals: dict[str, Calibration], results: list[dict[str, Any]]) -> None:
     if args.output is not None:
-        path = save_calibrations(args.output, {sensor or "sensor": cal})
+        path = save_calibrations(args.output, cals)
         print(f"wrote {path}")
     if args.json is not None:
-        d = result_dict(cal, str(args.input), len(rec.t))
+        d = results[0] if len(results) == 1 else {"calibrations": results}
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(d, indent=2) + "\n", encoding="utf-8")
         print(f"wrote {args.json}")
+
+
+def _report_rescue(res: Rescue, args: argparse.Namespace, sensor: str, n_read: int) -> int:
+    """Print the diagnosis and the calibrations it fitted, write them; 3 when nothing could be fitted."""
+    for line in res.lines:
+        print(line)
+    if res.refused:
+        return 3
+    cals: dict[str, Calibration] = {}
+    results = []
+    key = sensor or "sensor"
+    last = max((k for k, p in enumerate(res.parts) if p.calibration is not None), default=-1)
+    for k, part in enumerate(res.parts):
+        cal = part.calibration
+        print(f"-- {part.label}: {part.n_points} samples" + (f" ({part.note})" if part.note else ""))
+        if cal is None:
+            continue
+        _print(cal, str(args.input), n_read)
+        pf = part.prior_fit
+        if pf is not None:
+            print(f"  updated by the data: {', '.join(pf.updated) or 'none'}")
+            print(f"  from the prior:      {', '.join(pf.from_prior) or 'none'}")
+        if sensor == "mag":
+            text = heading_text(cal)
+            if text:
+                print(f"  {text}")
+        name = key if k == last else f"{key}_{k + 1}"  # the last calibration is the sensor's current one
+        cals[name] = cal
+        d = result_dict(cal, str(args.input), n_read)
+        d["diagnosis"] = res.kind
+        d["part"] = part.label
+        if pf is not None:
+            d["updated"], d["from_prior"] = list(pf.updated), list(pf.from_prior)
+        results.append(d)
+    _write(args, cals, results)
     return 0

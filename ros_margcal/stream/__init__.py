@@ -1,18 +1,25 @@
 """The streaming calibrator of one sensor: samples in, validated calibrations and a status out.
 
-``calibrator.SensorCalibrator.push`` walks a sample through the gate, the buffer, the validator, the
-fit and the guard rails (``config.guard_rails``); ``status`` holds what ``/calib/status`` shows.
-Pure Python: the ROS node (``ros``) and ``margcal replay`` drive it.
+``calibrator.SensorCalibrator.push`` walks a sample through the input checks (``intake``, with the
+unit's limits from ``units``), the gate, the buffer, the validator, the fit and the guard rails
+(``evaluation``, ``config.guard_rails``) and the change test (``change``); ``status`` holds what
+``/calib/status`` shows. Pure Python: the ROS node (``ros``) and ``margcal replay`` (``replay``) drive it.
 """
 
 from __future__ import annotations
 
 from .calibrator import SensorCalibrator
-from .config import ACCEL_UNITS, GRAVITY, MAG_UNITS, PipelineConfig, guard_rails
+from .change import ChangeDetection
+from .config import FIELD_SPECS, STATIC_SPREAD, FieldSpec, PipelineConfig, guard_rails, plausibility, rms_relative
+from .evaluation import Evaluation
+from .intake import DROP_REASONS, MAX_GYRO_RAD_S, MAX_STAMP_S, Intake
 from .replay import replay
 from .status import Event, EventKind, Level, State, Status, pct
+from .units import ACCEL_UNITS, GRAVITY, LEARN_HIGH, LEARN_LOW, LEARN_SAMPLES, MAG_UNITS, unit_scale
 
 __all__ = [
-    "ACCEL_UNITS", "GRAVITY", "MAG_UNITS", "Event", "EventKind", "Level", "PipelineConfig", "SensorCalibrator",
-    "State", "Status", "guard_rails", "pct", "replay"
+    "ACCEL_UNITS", "DROP_REASONS", "FIELD_SPECS", "GRAVITY", "LEARN_HIGH", "LEARN_LOW", "LEARN_SAMPLES",
+    "MAG_UNITS", "MAX_GYRO_RAD_S", "MAX_STAMP_S", "STATIC_SPREAD", "ChangeDetection", "Evaluation", "Event",
+    "EventKind", "FieldSpec", "Intake", "Level", "PipelineConfig", "SensorCalibrator", "State", "Status",
+    "guard_rails", "pct", "plausibility", "replay", "rms_relative", "unit_scale"
 ]

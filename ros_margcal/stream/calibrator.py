@@ -63,7 +63,8 @@ from ..coverage.gate import InactivityGate
 from ..model.calibration import Calibration
 from ..model.errors import ConfigError
 from ..validation.shipped import default_validator
-from .config import PipelineConfig
+from .change import ChangeDetection
+from .config import STATIC_SPREAD, PipelineConfig
 from .evaluation import Evaluation
 from .intake import DROP_REASONS, Intake
 from .status import Event, EventKind, Level, State, Status, pct
@@ -75,8 +76,7 @@ log = logging.getLogger(__name__)
 
 Array = NDArray[np.float64]
 
-
-class SensorCalibrator(Evaluation):
+class SensorCalibrator(ChangeDetection, Evaluation):
     """Online calibration of one sensor (see the module docstring for the flow).
 
     Args:
@@ -276,52 +276,6 @@ class SensorCalibrator(Evaluation):
             events += self._evaluate(t, force=False)
         return events
 
-    def _check_change(self, t: float) -> list[Event]:
-        """Declare a change when the windowed median residual stays above the threshold long enough."""
-        cfg = self.config
-        k = cfg.change_window
-        if len(self._recent_r) < k:
-            return []
-        window = list(self._recent_r)[-k:]
-        med = float(np.median(window))
-        if med <= cfg.change_threshold:
-            self._suspect_since = None
-            return []
-        if self._suspect_since is None:
-            # the median of k samples crosses when about half of them are bad: the change began there
-            self._suspect_since = self._recent_t[-(k // 2) - 1]
-        onset = self._suspect_since
-        if t - onset < cfg.change_min_duration_s:
-            return []
-        times = np.asarray(self._recent_t)
-        first_bad = int(np.searchsorted(times, onset))
-        # the median puts the onset within a sample or two; samples there that the old calibration
-        # still explains were taken before the change and would bias the new fit (one pre-jump sample
-        # in 64 moved the offset by 9 % of the norm), so the new buffer starts at the first bad one
-        resid = self._recent_r
-        while first_bad < len(resid) - 1 and resid[first_bad] <= cfg.change_threshold:
-            first_bad += 1
-        onset = float(times[first_bad])
-        self._changed = True
-        self._change_onset = onset
-        self.changes += 1
-        self._suspect_since = None
-        pts = np.array(self._recent_v)[first_bad:]
-        tt = times[first_bad:]
-        self._buffer.clear()
-        cal = self._cal
-        self._buffer.set_center(np.zeros(3) if cal is None else cal.offset, 1.0 if cal is None else cal.raw_radius)
-        for ti, p in zip(tt, pts, strict=True):
-            self._buffer.push(float(ti), p)
-        self._since_eval = len(self._buffer)
-        self._predicted = None
-        msg = (f"sensor changed at t={onset:.2f} s: median residual {pct(med)} > {pct(cfg.change_threshold)} "
-               f"for {t - onset:.1f} s; recollecting")
-        log.info("%s: %s", self.sensor, msg)
-        self._last_reason = msg
-        events = [Event(EventKind.CHANGED, t, self.sensor, msg)]
-        return events + self._set_state(State.COLLECTING, t)
-
     def _set_state(self, state: State, t: float) -> list[Event]:
         if state == self._state:
             return []
@@ -339,6 +293,18 @@ class SensorCalibrator(Evaluation):
             return None
         e = self._cal.norm_error(pts) / self._cal.norm
         return float(np.sqrt(np.mean(e * e)))
+
+    def _static_note(self) -> str:
+        """"; the sensor has not turned ..." when the recent samples stay within ``STATIC_SPREAD`` of their mean."""
+        pts = np.array(self._recent_v, dtype=np.float64).reshape(-1, 3)
+        if len(pts) < self.config.change_window:
+            return ""
+        level = float(np.median(np.linalg.norm(pts, axis=1)))
+        spread = float(np.sqrt(np.mean(np.sum((pts - pts.mean(axis=0)) ** 2, axis=1)))) / max(level, 1e-300)
+        if spread >= STATIC_SPREAD:
+            return ""
+        return (f"; the sensor has not turned: the last {len(pts)} samples stay within {pct(spread)} of their mean "
+                "(static: they fix the field norm only); turn it through all directions")
 
     def status(self, now: float | None = None) -> Status:
         """The status at message time ``now`` (default: the last sample's time)."""
@@ -364,13 +330,23 @@ class SensorCalibrator(Evaluation):
             elif self._predicted is not None:
                 msg = (f"collecting: {pct(self.coverage)} coverage, "
                        f"predicted error {pct(self._predicted)} > {pct(self.threshold)}")
+                msg += self._static_note()
             elif self.passed == 0 and self.seen:
-                worst = max(self.dropped, key=lambda k: self.dropped[k])
-                msg = f"collecting: every sample dropped so far ({self.dropped[worst]} x {worst})"
+                msg = f"collecting: every sample dropped so far: {self._intake.drop_summary()}"
             elif self.kept == 0 and self._gate is not None:
-                msg = "collecting: no still sample from the inactivity gate yet (hold the sensor still in a few poses)"
+                cv, axis = self._gate.window_stats
+                last = f", last window CV {cv:.2g}, axis spread {axis:.2g}" if math.isfinite(cv) else ""
+                msg = (f"collecting: no still sample from the inactivity gate yet: {self.passed} samples reached it, "
+                       f"none in a still {self.config.gate_window_s:g} s window (CV of |a| <= "
+                       f"{self.config.gate_cv_threshold:g}{last}); hold the sensor still in a few poses, or raise "
+                       f"{self.sensor}.gate_cv_threshold for a noisy sensor")
             else:
                 msg = f"collecting: {self._last_reason}"
+            dropped = sum(self.dropped.values())
+            if self.passed and 2 * dropped > self.seen:
+                msg += f"; {self._intake.drop_summary()}"
+        if self._intake.learnt:
+            msg += f"; {self._intake.learnt}"
         if self._time_base_note:
             msg += f"; {self._time_base_note}"
         ind = self._indicators

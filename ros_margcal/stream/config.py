@@ -6,12 +6,18 @@ offset limit, diagonal/off-diagonal limits, field strength check), restated for 
 
 - residual: ``stats.rms_relative`` (RMS of ``|W (v - b)| - norm`` over ``norm``) at most
   ``max_residual``;
-- offset: ``|b|`` at most ``max_offset_ratio`` times the raw field radius (a hard iron of a few
-  Earth fields is common on a robot; an accelerometer bias beyond ~0.35 g is a broken sensor);
+- offset: ``|b|`` at most ``max_offset_ratio`` times the raw field radius or ``max_offset`` (absolute,
+  in ``unit``), whichever is larger. A hard iron of a few Earth fields is common on a robot, and a
+  phone or a logger beside a battery reads more: ArduPilot accepts 1 800 mG (180 µT), real recordings
+  show 231 µT in a 39 µT field; the magnetometer default is therefore 5 field norms or 1 mT (20 Earth
+  fields, within the ±4.9 mT range of phone magnetometers), and 20 field norms in a unit without a
+  known scale (counts). An accelerometer bias beyond ~0.35 g is a broken sensor. The message gives
+  the fitted offset so a user can judge;
 - gains: the singular values of ``W`` scaled so that a sphere gives 1 (the axis ratios of the raw
   ellipsoid) within ``[gain_min, gain_max]``;
 - field norm: the raw radius ``norm / |det W|^(1/3)`` within ``[norm_min, norm_max]`` (20–70 µT
-  for the Earth field in the configured unit; 0.85–1.15 g for gravity);
+  for the Earth field in the configured unit; 0.85–1.15 g for gravity); off in a unit without a
+  known scale (``units``: counts), where the intake learns its magnitude limits from the data instead;
 - parameter uncertainty: the one-sigma std of every fitted parameter (from the fit's covariance;
   offsets over the radius, matrix elements over the mean gain) at most ``max_parameter_std``: a
   set the validator let through but that leaves the model undetermined (two great circles) is
@@ -33,28 +39,28 @@ from numpy.typing import NDArray
 from ..model.calibration import MODELS, Calibration
 from ..model.errors import ConfigError
 from ..model.fitting import LOSSES, METHODS, SUPPORTED
+from .units import ACCEL_UNITS, GRAVITY, LEARN_SAMPLES, MAG_UNITS, unit_scale
 
-__all__ = ["ACCEL_UNITS", "FIELD_SPECS", "GRAVITY", "MAG_UNITS", "FieldSpec", "PipelineConfig", "guard_rails"]
-
-GRAVITY = 9.80665
-"""Standard gravity, m/s²."""
-
-MAG_UNITS = {"T": 1.0, "tesla": 1.0, "mT": 1e-3, "uT": 1e-6, "µT": 1e-6, "nT": 1e-9, "gauss": 1e-4, "G": 1e-4,
-             "mG": 1e-7, "mgauss": 1e-7}
-"""Magnetometer units -> tesla."""
-ACCEL_UNITS = {"m/s^2": 1.0, "m/s2": 1.0, "m/s²": 1.0, "g": GRAVITY, "mg": GRAVITY * 1e-3}
-"""Accelerometer units -> m/s²."""
+__all__ = ["ACCEL_UNITS", "FIELD_SPECS", "GRAVITY", "MAG_UNITS", "STATIC_SPREAD", "FieldSpec", "PipelineConfig", "guard_rails",
+           "plausibility", "rms_relative"]
 
 EARTH_FIELD_RANGE_T = (20e-6, 70e-6)
 """Plausible geomagnetic field strength, tesla."""
+STATIC_SPREAD = 0.03
+"""RMS distance of readings from their mean, over their mean norm, below which the sensor has not turned
+(an HMC5883L at rest: 0.2 %; a full turn with an offset of 10 field norms: about 10 %)."""
+MAX_OFFSET_T = 1e-3
+"""Default absolute magnetometer offset limit, tesla (20 Earth fields; ArduPilot: 1 800 mG = 180 µT)."""
 
 
 @dataclass(frozen=True)
 class PipelineConfig:
     """Options of ``SensorCalibrator``; ``for_sensor`` gives the defaults (also in msg_configs/margcal.yaml).
 
-    Magnitudes (``min_magnitude``, ``max_magnitude``, ``norm_min``, ``norm_max``, ``reference_norm``)
-    are in ``unit``; ratios (``max_residual``, thresholds) are fractions of the field norm.
+    Magnitudes (``min_magnitude``, ``max_magnitude``, ``norm_min``, ``norm_max``, ``reference_norm``,
+    ``max_offset``) are in ``unit``; ratios (``max_residual``, thresholds) are fractions of the field
+    norm. ``learn_magnitude_samples`` > 0 makes the intake replace the magnitude limits by limits learnt
+    from that many first samples (the default in a unit without a known scale, see ``units``).
     ``checked`` holds every field to its ``FIELD_SPECS`` entry (type, range, memory bound).
     """
 
@@ -70,6 +76,7 @@ class PipelineConfig:
     # input sanity
     min_magnitude: float = 1e-9
     max_magnitude: float = 1.4e-3
+    learn_magnitude_samples: int = 0
     max_rate_hz: float = 2000.0
     max_stamp_gap_s: float = 60.0  # a forward stamp step beyond this is a jump: a glitch, or a new time base
     new_time_base_after: int = 5  # consecutive consistent samples off the current time base that make a new one
@@ -84,6 +91,7 @@ class PipelineConfig:
     # guard rails
     max_residual: float = 0.05
     max_offset_ratio: float = 5.0
+    max_offset: float | None = None  # absolute offset limit in unit; the larger of the two limits applies
     gain_min: float = 0.6
     gain_max: float = 1.6
     norm_min: float = 20e-6
@@ -108,33 +116,44 @@ class PipelineConfig:
 
     @classmethod
     def for_sensor(cls, sensor: str, unit: str | None = None, **overrides: Any) -> PipelineConfig:
-        """Defaults for ``"mag"`` (raw unit tesla unless given) or ``"accel"`` (m/s² unless given)."""
+        """Defaults for ``"mag"`` (raw unit tesla unless given) or ``"accel"`` (m/s² unless given).
+
+        In a unit without a known scale (``units.unit_scale`` is None: counts) the field-strength check
+        is off, the magnitude limits are learnt from the first ``units.LEARN_SAMPLES`` samples (unless
+        ``min_magnitude`` or ``max_magnitude`` is given) and the magnetometer's offset limit is 20
+        field norms.
+        """
         if unit is not None and not isinstance(unit, str):
             raise ConfigError(f"unit must be a string, got {unit!r}")
+        if sensor not in ("mag", "accel"):
+            msg = f"sensor must be 'mag' or 'accel', got {sensor!r}"
+            raise ConfigError(msg)
+        u = unit or ("T" if sensor == "mag" else "m/s^2")
+        scale = unit_scale(sensor, u)
+        unknown: dict[str, Any] = {}
+        if scale is None:  # counts: no field-strength check, magnitude limits from the data
+            learn = 0 if {"min_magnitude", "max_magnitude"} & set(overrides) else LEARN_SAMPLES
+            unknown = {"norm_min": 0.0, "norm_max": math.inf, "min_magnitude": 0.0, "max_magnitude": _MAGNITUDE_MAX,
+                       "learn_magnitude_samples": learn, "reference_norm": None}
         if sensor == "mag":
-            u = unit or "T"
-            if u not in MAG_UNITS:
-                lo, hi, scale = 0.0, math.inf, 1.0  # unknown unit: no field-strength check
-            else:
-                scale = MAG_UNITS[u]
-                lo, hi = EARTH_FIELD_RANGE_T[0] / scale, EARTH_FIELD_RANGE_T[1] / scale
-            top = 20.0 * EARTH_FIELD_RANGE_T[1] / scale
-            base = cls(sensor="mag", unit=u, reference_norm=None, norm_min=lo, norm_max=hi,
-                       min_magnitude=1e-3 * EARTH_FIELD_RANGE_T[0] / scale, max_magnitude=top)
-        elif sensor == "accel":
-            u = unit or "m/s^2"
-            g = GRAVITY / ACCEL_UNITS.get(u, 1.0)
+            s = scale or 1.0
+            base = cls(sensor="mag", unit=u, reference_norm=None, norm_min=EARTH_FIELD_RANGE_T[0] / s,
+                       norm_max=EARTH_FIELD_RANGE_T[1] / s, min_magnitude=1e-3 * EARTH_FIELD_RANGE_T[0] / s,
+                       max_magnitude=20.0 * EARTH_FIELD_RANGE_T[1] / s,
+                       max_offset=None if scale is None else MAX_OFFSET_T / s,
+                       max_offset_ratio=20.0 if scale is None else 5.0)
+        else:
+            g = GRAVITY / (scale or 1.0)
             base = cls(sensor="accel", unit=u, reference_norm=g, norm_min=0.85 * g, norm_max=1.15 * g,
                        min_magnitude=1e-3 * g, max_magnitude=16.0 * g, min_points=12, refit_every=1,
                        refit_min_interval_s=0.0, recheck_interval_s=10.0, max_offset_ratio=0.35, gain_min=0.85,
                        gain_max=1.15, recent_samples=40, change_window=6, change_threshold=0.03,
                        change_min_duration_s=0.0, outlier_threshold=0.2, max_residual=0.03)
-        else:
-            msg = f"sensor must be 'mag' or 'accel', got {sensor!r}"
-            raise ConfigError(msg)
-        unknown = sorted(set(overrides) - {f.name for f in fields(cls)})
         if unknown:
-            raise ConfigError(f"unknown options {unknown}")
+            base = replace(base, **unknown)
+        bad = sorted(set(overrides) - {f.name for f in fields(cls)})
+        if bad:
+            raise ConfigError(f"unknown options {bad}")
         return replace(base, **overrides).checked() if overrides else base.checked()
 
     def checked(self) -> PipelineConfig:
@@ -241,6 +260,7 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "max_iter": FieldSpec(int, 1, 100_000),
     "min_magnitude": _real(0.0, _MAGNITUDE_MAX),
     "max_magnitude": _real(_MAGNITUDE_MIN, _MAGNITUDE_MAX),
+    "learn_magnitude_samples": FieldSpec(int, 0, 10_000),
     "max_rate_hz": _real(1e-3, 1e6),
     "n_bins": FieldSpec(int, 6, 10_000),
     "per_bin": FieldSpec(int, 1, 1_000),
@@ -251,6 +271,7 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "recheck_interval_s": _real(0.0, _DAY_S),
     "max_residual": _ratio(1.0),
     "max_offset_ratio": _ratio(100.0),
+    "max_offset": _real(_MAGNITUDE_MIN, _MAGNITUDE_MAX, none_ok=True),
     "gain_min": _real(1e-3, 1.0),
     "gain_max": _real(1.0, 100.0),
     "norm_min": _real(0.0, _MAGNITUDE_MAX),
@@ -271,7 +292,10 @@ FIELD_SPECS: dict[str, FieldSpec] = {
 """The type and range of every ``PipelineConfig`` field (``checked`` refuses a field missing here)."""
 
 
-def _rms_rel(cal: Calibration, pts: NDArray[np.float64]) -> float:
+def rms_relative(cal: Calibration, pts: NDArray[np.float64]) -> float:
+    """RMS of ``|W (v - b)| - norm`` over ``norm`` on ``pts`` (0 for no points)."""
+    if not len(pts):
+        return 0.0
     e = cal.norm_error(pts) / cal.norm
     return float(np.sqrt(np.mean(e * e)))
 
@@ -284,6 +308,23 @@ def guard_rails(cal: Calibration, cfg: PipelineConfig, recent: NDArray[np.float6
             return f"fit did not converge after {st.iterations} iterations"
         if not st.rms_relative <= cfg.max_residual:
             return f"residual RMS {100 * st.rms_relative:.2f} % > limit {100 * cfg.max_residual:.2f} %"
+    reason = plausibility(cal, cfg)
+    if reason:
+        return reason
+    if current is not None and len(recent) >= 3:
+        new_rms, cur_rms = rms_relative(cal, recent), rms_relative(current, recent)
+        if new_rms > cur_rms * (1.0 + cfg.not_worse_tolerance):
+            return (f"worse than the current calibration on the last {len(recent)} samples "
+                    f"({100 * new_rms:.2f} % vs {100 * cur_rms:.2f} %)")
+    return ""
+
+
+def plausibility(cal: Calibration, cfg: PipelineConfig) -> str:
+    """Why the parameters of ``cal`` are implausible ("" when they are not): field norm, uncertainty, offset, gains.
+
+    The checks of ``guard_rails`` that look at the calibration alone (not at its fit statistics or at
+    the current calibration); ``margcal calibrate`` uses them to tell a batch fit that ran away.
+    """
     det = abs(float(np.linalg.det(cal.matrix)))
     radius = cal.norm / det ** (1.0 / 3.0)
     if not cfg.norm_min <= radius <= cfg.norm_max:
@@ -298,14 +339,14 @@ def guard_rails(cal: Calibration, cfg: PipelineConfig, recent: NDArray[np.float6
             return (f"parameter uncertainty too large: std of {worst} is {100 * rel[worst]:.2g} % > "
                     f"{100 * cfg.max_parameter_std:.2g} % (the directions do not determine the model)")
     off = float(np.linalg.norm(cal.offset))
-    if off > cfg.max_offset_ratio * radius:
-        return f"offset {off:.4g} {cfg.unit} > limit {cfg.max_offset_ratio:g} x field norm ({cfg.max_offset_ratio * radius:.4g})"
+    limit = max(cfg.max_offset_ratio * radius, cfg.max_offset or 0.0)
+    if off > limit:
+        vec = ", ".join(f"{x:.4g}" for x in cal.offset)
+        absolute = f" or {cfg.max_offset:.4g} {cfg.unit} (max_offset)" if cfg.max_offset is not None else ""
+        return (f"offset {off:.4g} {cfg.unit} (fitted [{vec}], {off / radius:.3g} field norms) > limit "
+                f"{limit:.4g} {cfg.unit}: the larger of {cfg.max_offset_ratio:g} x field norm "
+                f"(max_offset_ratio){absolute}; raise the limit if the sensor really carries this hard iron")
     gains = np.linalg.svd(cal.matrix, compute_uv=False) * radius / cal.norm
     if gains.min() < cfg.gain_min or gains.max() > cfg.gain_max:
         return f"axis gains {np.round(gains, 3).tolist()} outside [{cfg.gain_min:g}, {cfg.gain_max:g}]"
-    if current is not None and len(recent) >= 3:
-        new_rms, cur_rms = _rms_rel(cal, recent), _rms_rel(current, recent)
-        if new_rms > cur_rms * (1.0 + cfg.not_worse_tolerance):
-            return (f"worse than the current calibration on the last {len(recent)} samples "
-                    f"({100 * new_rms:.2f} % vs {100 * cur_rms:.2f} %)")
     return ""

@@ -8,7 +8,10 @@ objects (the node and the replay hand over what a message or a file held):
   complex or string arrays, objects whose ``len`` or ``float`` raises) is ``wrong_size``; a stamp
   that is not a real number, or beyond ``MAX_STAMP_S``, is ``bad_stamp``.
 - NaN or ±Inf, also a Python int beyond the float range, is ``nonfinite``; a norm at most
-  ``min_magnitude`` is ``zero``, above ``max_magnitude`` ``magnitude``.
+  ``min_magnitude`` is ``zero``, above ``max_magnitude`` ``magnitude`` (the last offending norm is kept
+  in ``last_magnitude`` for the status). With ``learn_magnitude_samples`` > 0 (a unit without a known
+  scale, such as counts) the first that many samples pass with any non-zero norm up to ``max_magnitude`` and their
+  median norm ``m`` sets the limits to ``[units.LEARN_LOW m, units.LEARN_HIGH m]`` (``learnt`` says so).
 - Stamps, the time base: a sample is on the current time base when its step from the last one is in
   ``(0, max_stamp_gap_s]``. An equal stamp is ``repeated_stamp``. A sample off the time base
   (behind it: ``backwards_stamp``; ahead by more than ``max_stamp_gap_s``: ``stamp_jump``) is dropped
@@ -37,6 +40,7 @@ from typing import Any
 import numpy as np
 
 from .config import PipelineConfig
+from .units import LEARN_HIGH, LEARN_LOW
 
 __all__ = ["DROP_REASONS", "MAX_GYRO_RAD_S", "MAX_STAMP_S", "Intake"]
 
@@ -114,6 +118,32 @@ class Intake:
         self._last_taken_t = -math.inf
         self._off_last: float | None = None
         self._off_count = 0
+        self.last_magnitude: float | None = None
+        """The norm of the last sample dropped as ``zero`` or ``magnitude``."""
+        self._learning: list[float] = []
+        self._learnt: tuple[float, float, float] | None = None  # (median norm, low, high)
+
+    @property
+    def limits(self) -> tuple[float, float]:
+        """The magnitude limits in use: the learnt ones, else the configuration's."""
+        if self._learnt is not None:
+            return self._learnt[1], self._learnt[2]
+        return self.config.min_magnitude, self.config.max_magnitude
+
+    @property
+    def learning(self) -> bool:
+        """The limits are still being learnt from the first samples."""
+        return self._learnt is None and self.config.learn_magnitude_samples > 0
+
+    @property
+    def learnt(self) -> str:
+        """How the limits were learnt ("" when they come from the configuration)."""
+        if self._learnt is None:
+            return "" if not self.learning else (f"learning magnitude limits for unit {self.config.unit!r} "
+                                                 f"({len(self._learning)} of {self.config.learn_magnitude_samples} samples)")
+        m, lo, hi = self._learnt
+        return (f"unit {self.config.unit!r} has no known scale: magnitude limits [{lo:.4g}, {hi:.4g}] learnt from "
+                f"the first {self.config.learn_magnitude_samples} samples (median |v| {m:.4g}); no field-strength check")
 
     def take(self, t: Any, xyz: Any, gyro: Any = None) -> tuple[float, Vec3, Vec3 | None] | None:
         """``(t, (x, y, z), gyro or None)`` when the sample is good, else None (the drop is counted)."""
@@ -146,9 +176,13 @@ class Intake:
             return "bad_stamp"
         mag = math.sqrt(x * x + y * y + z * z)
         cfg = self.config
-        if mag <= cfg.min_magnitude:
+        learning = self.learning
+        lo, hi = (0.0, cfg.max_magnitude) if learning else self.limits
+        if mag <= lo:
+            self.last_magnitude = mag
             return "zero"
-        if mag > cfg.max_magnitude:
+        if mag > hi:
+            self.last_magnitude = mag
             return "magnitude"
         reason = self._stamp(ts)
         if reason:
@@ -156,7 +190,32 @@ class Intake:
         if ts - self._last_taken_t < cfg.min_period_s:
             return "burst"
         self._last_taken_t = ts
+        if learning:
+            self._learning.append(mag)
+            if len(self._learning) >= cfg.learn_magnitude_samples:
+                m = float(np.median(self._learning))
+                self._learnt = (m, LEARN_LOW * m, LEARN_HIGH * m)
+                self._learning = []
         return ts, v
+
+    def drop_summary(self) -> str:
+        """Why the samples were dropped, with the count, the offending norm, the limit and a hint ("" if none)."""
+        total = sum(self.dropped.values())
+        if not total:
+            return ""
+        worst = max(self.dropped, key=lambda k: self.dropped[k])
+        n = self.dropped[worst]
+        head = f"{total} of {self.seen} samples dropped"
+        cfg = self.config
+        lo, hi = self.limits
+        where = "learnt" if self._learnt is not None else f"{cfg.sensor}.{'max' if worst == 'magnitude' else 'min'}_magnitude"
+        if worst == "magnitude" and self.last_magnitude is not None:
+            return (f"{head}: {n} x |v| above the limit, last |v| = {self.last_magnitude:.4g} > {hi:.4g} {cfg.unit} "
+                    f"({where}); set --unit to the recording's unit or raise {cfg.sensor}.max_magnitude")
+        if worst == "zero" and self.last_magnitude is not None:
+            return (f"{head}: {n} x |v| at or below the limit, last |v| = {self.last_magnitude:.4g} <= {lo:.4g} "
+                    f"{cfg.unit} ({where}); set --unit to the recording's unit or lower {cfg.sensor}.min_magnitude")
+        return f"{head}: {n} x {worst}"
 
     def _stamp(self, t: float) -> str:
         """"" when ``t`` is on the time base (or starts a new one), else the drop reason."""

@@ -206,7 +206,8 @@ def test_guard_rails_name_the_failed_check() -> None:
     assert guard_rails(good, cfg, recent, None) == ""
     assert "residual RMS" in guard_rails(good.replace(stats=FitStats(100, 1e-5, 2e-5, 0.2)), cfg, recent, None)
     assert "field norm" in guard_rails(good.replace(norm=200e-6), cfg, recent, None)
-    assert "offset" in guard_rails(good.replace(offset=np.array([4e-4, 0.0, 0.0])), cfg, recent, None)
+    assert "offset" in guard_rails(good.replace(offset=np.array([1.5e-3, 0.0, 0.0])), cfg, recent, None)
+    assert guard_rails(good.replace(offset=np.array([4e-4, 0.0, 0.0])), cfg, recent, None) == ""  # 8 norms < 1 mT
     assert "axis gains" in guard_rails(good.replace(matrix=np.diag([2.0, 1.0, 0.5])), cfg, recent, None)
     worse = good.replace(offset=good.offset + 3e-6)
     assert "worse than the current" in guard_rails(worse, cfg, recent, good)

@@ -1,0 +1,255 @@
+"""Why a batch fit failed, and what can still be fitted: ``margcal calibrate``'s answer to "did not converge".
+
+The plain fit of ``fitting.fit`` (norm residual, every parameter free) stops with a ``ConvergenceError``
+or runs away (a huge flat ellipsoid) on data that do not determine the model. ``rescue`` looks for the
+reason, in this order, and acts on it:
+
+1. *static*: the readings stay within ``STATIC_SPREAD`` of their mean norm (RMS distance from their
+   mean): they fix the field norm and nothing else. Nothing is fitted (``Rescue.refused``).
+2. *a change*: ``diagnosis.changes.locate_offset_change`` finds an offset step (a magnet attached
+   mid-way): the recording holds two calibrations; each side is fitted on its own (plain fit, or the
+   prior fit when that side alone is partial) and both are returned.
+3. *partial coverage* (a hemisphere, a ring, a few great circles): ``fitting_prior.fit_with_prior``
+   from ``broad_prior`` fits what the directions determine and keeps the rest at the prior, saying
+   which parameters are which.
+
+A result is *implausible* when ``stream.config.plausibility`` says so (field norm outside the Earth
+field or gravity in a known unit, parameter uncertainty, offset limit, axis gains): the same limits
+the online calibrator applies before it publishes. A plausible fit whose residual exceeds the online
+limit (``residual_note``) is only searched for an offset change (``change_only``): without one the
+high residual is motion or disturbance, and the plain fit stands with a warning.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..diagnosis.changes import OffsetChange, locate_offset_change
+from ..model.calibration import Calibration
+from ..model.errors import ConvergenceError, DegenerateDataError, InputError
+from ..model.fitting import fit
+from ..model.fitting_prior import PriorFit, broad_prior, fit_with_prior
+from ..model.heading import heading_p95
+from ..stream.config import STATIC_SPREAD, PipelineConfig, plausibility
+
+__all__ = ["STATIC_SPREAD", "Part", "Rescue", "check", "config_for", "heading_text", "rescue"]
+
+Array = NDArray[np.float64]
+
+_MIN_POINTS = 10  # fewer samples than this are not fitted at all
+_PRIOR_POINTS = 6000  # the prior fit runs on at most this many evenly spaced samples
+
+
+@dataclass(frozen=True)
+class Part:
+    """One calibration of the rescue: its samples, the fit, and the prior fit's bookkeeping if one was used."""
+
+    label: str
+    calibration: Calibration | None
+    n_points: int
+    prior_fit: PriorFit | None = None
+    note: str = ""
+
+
+@dataclass(frozen=True)
+class Rescue:
+    """What ``rescue`` found: the reason (``kind``: static, change, partial), the parts fitted, the text."""
+
+    kind: str
+    reason: str
+    parts: tuple[Part, ...] = ()
+    change: OffsetChange | None = None
+    lines: list[str] = field(default_factory=list)
+
+    @property
+    def refused(self) -> bool:
+        """Nothing was fitted (a static recording)."""
+        return not any(p.calibration is not None for p in self.parts)
+
+
+def config_for(sensor: str, unit: str) -> PipelineConfig:
+    """The online calibrator's limits for ``sensor`` in ``unit`` (an empty or unknown unit: no field-strength check)."""
+    return PipelineConfig.for_sensor(sensor, unit or "raw")
+
+
+def check(cal: Calibration, cfg: PipelineConfig | None) -> str:
+    """Why ``cal`` is implausible ("" when it is not, or when there is no configuration to judge it).
+
+    ``stream.config.plausibility``: the field norm in a known unit, the parameter uncertainty, the
+    offset and the axis gains.
+    """
+    return "" if cfg is None else plausibility(cal, cfg)
+
+
+def residual_note(cal: Calibration, cfg: PipelineConfig | None) -> str:
+    """"" unless the residual exceeds the online calibrator's ``max_residual`` (5 % of the field for the magnetometer)."""
+    st = cal.stats
+    if cfg is None or st is None or st.rms_relative <= cfg.max_residual:
+        return ""
+    return (f"residual RMS {100 * st.rms_relative:.3g} % > limit {100 * cfg.max_residual:.3g} %: "
+            "one calibration does not explain the recording")
+
+
+def _spread(points: Array) -> float:
+    mean = points.mean(axis=0)
+    scale = float(np.median(np.linalg.norm(points, axis=1))) or 1.0
+    return float(np.sqrt(np.mean(np.sum((points - mean) ** 2, axis=1)))) / scale
+
+
+def _norm_guess(points: Array) -> float:
+    """A field norm for the prior: the algebraic sphere fit's radius, else the half-extent of the data."""
+    centred = points - points.mean(axis=0)
+    half = 0.5 * float(np.ptp(centred @ np.linalg.svd(centred, full_matrices=False)[2][0]))
+    a = np.c_[2.0 * points, np.ones(len(points))]
+    sol, *_ = np.linalg.lstsq(a, (points * points).sum(axis=1), rcond=None)
+    r2 = float(sol[3] + sol[:3] @ sol[:3])
+    r = math.sqrt(r2) if math.isfinite(r2) and r2 > 0 else 0.0
+    return r if 0.5 * half <= r <= 2.0 * half else max(half, 1e-300)
+
+
+def _sphere_centre(points: Array) -> Array | None:
+    a = np.c_[2.0 * points, np.ones(len(points))]
+    sol, *_ = np.linalg.lstsq(a, (points * points).sum(axis=1), rcond=None)
+    return sol[:3] if np.isfinite(sol).all() else None
+
+
+def _prior_fit(points: Array, norm: float | None, sensor: str, unit: str, stamp: float) -> PriorFit:
+    """The MAP fit from ``broad_prior`` and from the same prior moved to the sphere-fit centre; the lower residual wins.
+
+    The broad prior is centred on zero offset; a hard iron of a field norm or more (a magnet) puts the
+    data's ellipsoid far from it and the fit can end in a poor minimum, which the second prior avoids.
+    """
+    step = max(1, len(points) // _PRIOR_POINTS)
+    pts = points[::step]
+    prior = broad_prior(pts, norm if norm is not None else _norm_guess(pts), sensor=sensor, unit=unit)
+    priors = [prior]
+    centre = _sphere_centre(pts)
+    if centre is not None:
+        priors.append(prior.replace(offset=centre))
+    best: PriorFit | None = None
+    for pr in priors:
+        try:
+            pf = fit_with_prior(pts, pr, time_ordered=True, stamp=stamp)
+        except ConvergenceError:
+            continue
+        st, bst = pf.calibration.stats, None if best is None else best.calibration.stats
+        if best is None or (st is not None and bst is not None and st.rms_relative < bst.rms_relative):
+            best = pf
+    if best is None:
+        msg = "the prior fit found no finite solution"
+        raise ConvergenceError(msg)
+    return best
+
+
+def _span(t: Array) -> str:
+    return f"{float(t[0]):.1f} to {float(t[-1]):.1f} s" if len(t) else "empty"
+
+
+def _segment(t: Array, points: Array, label: str, depth: int, kw: dict[str, object]) -> list[Part]:
+    """The calibrations of one stretch: nothing if static, the plain fit, a further split, or the prior fit."""
+    n = len(points)
+    unit = str(kw["unit"])
+    stamp = float(t[-1]) if len(t) else 0.0
+    spread = _spread(points) if n else 0.0
+    if n < _MIN_POINTS or spread < STATIC_SPREAD:
+        return [Part(label, None, n, note=f"static ({100 * spread:.2g} % spread): no calibration")]
+    cfg = kw["cfg"]
+    try:
+        cal = fit(points, model=str(kw["model"]), method="lm", norm=kw["norm"], loss=str(kw["loss"]),  # type: ignore[arg-type]
+                  sensor=str(kw["sensor"]), unit=unit).replace(stamp=stamp)
+        why = check(cal, cfg)  # type: ignore[arg-type]
+    except (ConvergenceError, DegenerateDataError) as exc:
+        why = str(exc)
+    else:
+        if not why:
+            return [Part(label, cal, n)]
+    if depth > 0:
+        ch = locate_offset_change(t, points)
+        if ch is not None:
+            before = t < ch.t
+            kw["changes"].append(ch.t)  # type: ignore[attr-defined]
+            return (_segment(t[before], points[before], _span(t[before]), depth - 1, kw)
+                    + _segment(t[~before], points[~before], _span(t[~before]), depth - 1, kw))
+    pf = _prior_fit(points, kw["norm"], str(kw["sensor"]), unit, stamp)  # type: ignore[arg-type]
+    return [Part(label, pf.calibration, n, pf, note=f"plain fit: {why}; fitted with the prior instead")]
+
+
+def rescue(t: Array | None, points: Array, *, failure: str, model: str, norm: float | None, loss: str,
+           sensor: str, unit: str, cfg: PipelineConfig | None, change_only: bool = False) -> Rescue | None:
+    """Diagnose a failed or implausible fit of ``points`` (module docstring) and fit what can be fitted.
+
+    Args:
+        t: the sample times (None: no change search).
+        points: the raw readings (n, 3) in time order.
+        failure: why the requested fit was not accepted (the error or the plausibility message).
+        model, norm, loss, sensor, unit: as for ``fitting.fit``.
+        cfg: the limits that judge a fit (``config_for``), None for no plausibility check.
+        change_only: the fit itself is plausible, only its residual is high: look for an offset change
+            and return None when there is none (motion or disturbances, not a reason to refit).
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    stamp = float(t[-1]) if t is not None and len(t) else 0.0
+    u = f" {unit}" if unit else ""
+    if change_only:
+        return _change(t, pts, failure, model=model, norm=norm, loss=loss, sensor=sensor, unit=unit, cfg=cfg)
+    if len(pts) < _MIN_POINTS:
+        reason = f"only {len(pts)} samples: too few for any calibration (need {_MIN_POINTS})"
+        return Rescue("too few", reason, lines=[f"requested fit: {failure}", reason])
+    spread = _spread(pts)
+    if spread < STATIC_SPREAD:
+        level = float(np.median(np.linalg.norm(pts, axis=1)))
+        reason = (f"static recording: the {len(pts)} readings stay within {100 * spread:.2g} % of their mean "
+                  f"(|v| = {level:.4g}{u}); they determine the field norm only, not the offset or the matrix")
+        return Rescue("static", reason, lines=[f"requested fit: {failure}", reason,
+                                               "no calibration fitted: turn the sensor through all directions"])
+    found = _change(t, pts, failure, model=model, norm=norm, loss=loss, sensor=sensor, unit=unit, cfg=cfg)
+    if found is not None:
+        return found
+    pf = _prior_fit(pts, norm, sensor, unit, stamp)
+    reason = (f"partial coverage: the directions determine {', '.join(pf.updated) or 'no parameter'}; "
+              f"{', '.join(pf.from_prior) or 'none'} kept from the broad prior ({_prior_text(pf)})")
+    return Rescue("partial", reason, (Part("prior fit", pf.calibration, len(pts), pf),), None,
+                  [f"requested fit: {failure}", reason])
+
+
+def _prior_text(pf: PriorFit) -> str:
+    centred = bool(np.any(pf.prior.offset))
+    return f"identity matrix, offset {'at the sphere-fit centre' if centred else 'zero'}, 5 field norms std"
+
+
+def _change(t: Array | None, pts: Array, failure: str, *, model: str, norm: float | None, loss: str, sensor: str,
+            unit: str, cfg: PipelineConfig | None) -> Rescue | None:
+    """The offset-change diagnosis: the stretches between located changes, each fitted; None without a change."""
+    u = f" {unit}" if unit else ""
+    if t is None or len(t) != len(pts) or len(pts) < _MIN_POINTS:
+        return None
+    times = np.asarray(t, dtype=np.float64)
+    ch = locate_offset_change(times, pts)
+    if ch is None:
+        return None
+    before = times < ch.t
+    changes: list[float] = [ch.t]
+    kw: dict[str, object] = {"model": model, "norm": norm, "loss": loss, "sensor": sensor, "unit": unit, "cfg": cfg,
+                             "changes": changes}
+    parts = (*_segment(times[before], pts[before], _span(times[before]), 1, kw),
+             *_segment(times[~before], pts[~before], _span(times[~before]), 1, kw))
+    more = sorted(changes[1:])
+    also = f" (and at {', '.join(f'{c:.2f}' for c in more)} s)" if more else ""
+    reason = (f"the offset changed at t = {ch.t:.2f} s by {ch.step:.4g}{u} ({100 * ch.relative_step:.3g} % of "
+              f"the field; the split removes {100 * ch.drop:.3g} % of one ellipsoid's residual){also}: the "
+              f"recording holds {len(parts)} calibrations, fitted on each stretch")
+    return Rescue("change", reason, parts, ch, [f"requested fit: {failure}", reason])
+
+
+def heading_text(cal: Calibration) -> str:
+    """Predicted heading error p95 from the covariance, level and at 30° tilt (60° inclination), or ""."""
+    try:
+        level = heading_p95(cal, tilt_deg=0.0, inclination=60.0)
+        tilt = heading_p95(cal, tilt_deg=30.0, inclination=60.0)
+    except (InputError, ValueError, np.linalg.LinAlgError):
+        return ""
+    return f"predicted heading error p95: {level:.2g} deg level, {tilt:.2g} deg at 30 deg tilt (60 deg inclination)"

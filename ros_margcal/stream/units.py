@@ -1,0 +1,43 @@
+"""Raw units of a recording or a driver, and the plausibility limits that follow from them.
+
+A magnetometer may report tesla (ROS), µT, gauss or milligauss, or raw integer counts whose scale only
+the driver knows (an HMC5883L at gain 1090 LSB/G reads about 540 counts in a 50 µT field, an LSM9DS1
+at 6842 LSB/G about 3 400). The magnitude limits of the intake and the field-strength guard rail only
+make sense in a known unit:
+
+- a known unit (``MAG_UNITS``, ``ACCEL_UNITS``; looked up as given, then case-insensitively) scales
+  the SI limits: the Earth field 20–70 µT, gravity 0.85–1.15 g, the absolute offset limit;
+- an unknown unit (``counts``, ``LSB``, ``raw``, anything else) has no scale: the field-strength
+  check is off and the intake learns its magnitude limits from the first samples
+  (``LEARN_SAMPLES``, ``LEARN_LOW`` and ``LEARN_HIGH`` times their median norm), which the status says.
+"""
+
+from __future__ import annotations
+
+__all__ = ["ACCEL_UNITS", "GRAVITY", "LEARN_HIGH", "LEARN_LOW", "LEARN_SAMPLES", "MAG_UNITS", "unit_scale"]
+
+GRAVITY = 9.80665
+"""Standard gravity, m/s²."""
+
+MAG_UNITS = {"T": 1.0, "tesla": 1.0, "mT": 1e-3, "uT": 1e-6, "µT": 1e-6, "μT": 1e-6, "microtesla": 1e-6,
+             "nT": 1e-9, "gauss": 1e-4, "G": 1e-4, "Gs": 1e-4, "mG": 1e-7, "mgauss": 1e-7, "milligauss": 1e-7}
+"""Magnetometer units -> tesla."""
+ACCEL_UNITS = {"m/s^2": 1.0, "m/s2": 1.0, "m/s²": 1.0, "g": GRAVITY, "mg": GRAVITY * 1e-3}
+"""Accelerometer units -> m/s²."""
+
+LEARN_SAMPLES = 20
+"""Samples whose median norm sets the magnitude limits when the unit is unknown."""
+LEARN_LOW = 1e-3
+"""Lower magnitude limit in an unknown unit, times the learnt median norm (a zero vector, a dead axis)."""
+LEARN_HIGH = 20.0
+"""Upper magnitude limit in an unknown unit, times the learnt median norm (the ratio of the SI limits:
+1.4 mT over 70 µT for the magnetometer)."""
+
+
+def unit_scale(sensor: str, unit: str) -> float | None:
+    """SI value of one ``unit`` of ``sensor`` (tesla or m/s²), or None when the unit is unknown (counts)."""
+    table = MAG_UNITS if sensor == "mag" else ACCEL_UNITS
+    if unit in table:
+        return table[unit]
+    folded = {k.lower(): v for k, v in table.items() if k not in ("G", "mG")}  # g/G, mg/mG clash across sensors
+    return folded.get(unit.strip().lower())

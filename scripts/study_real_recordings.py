@@ -1,0 +1,149 @@
+"""The streaming calibrator against the batch fit on the real recordings of ``../shared/data/real``.
+
+For every recording (its raw unit from the README there): replay it through ``SensorCalibrator`` (as
+``margcal replay FILE --sensor S --unit U`` does) and fit the whole file as ``margcal calibrate FILE
+--model sym --method lm`` does (with its diagnosis when the plain fit fails or is implausible:
+static, a located offset change, the prior fit on partial coverage). The table gives the stream's
+final state and why, the time to its first calibration, and, where both calibrated, the offset
+difference in % of the field and the heading p95 of the stream's calibration against the batch fit's
+(level and 30° tilt, 60° inclination, 72 yaws; magnetometer only).
+
+Usage::
+
+    python scripts/study_real_recordings.py [--data DIR] [--markdown]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from ros_margcal.cli.calibrate import still_samples
+from ros_margcal.cli.fit_rescue import check, config_for, rescue, residual_note
+from ros_margcal.model.calibration import Calibration
+from ros_margcal.model.errors import ConvergenceError, DegenerateDataError, RecordingError
+from ros_margcal.model.fitting import fit
+from ros_margcal.model.heading import attitudes
+from ros_margcal.recordings.read import read_recording
+from ros_margcal.stream.replay import replay
+from ros_margcal.stream.status import State
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real"
+
+UNITS = {  # raw unit per recording, from the README of the real recordings
+    "broad_02_undisturbed_slow_rotation_B_mag.csv": "uT",
+    "broad_32_disturbed_attached_magnet_1cm_mag.csv": "uT",
+    "broad_36_disturbed_attached_magnet_5cm_mag.csv": "uT",
+    "ck_lsm9ds1_full_sphere_mag.csv": "gauss",
+    "ck_lsm9ds1_static_poses_acc.csv": "g",
+    "fhoevi_full_sphere_mag.csv": "counts",
+    "hamagure_lsm9ds1_full_sphere_mag.csv": "gauss",
+    "hamagure_lsm9ds1_hemisphere_mag.csv": "gauss",
+    "sunsided_hmc5883l_full_sphere_mag.csv": "gauss",
+    "sunsided_hmc5883l_static_10min_mag.csv": "gauss",
+    "sunsided_mpu6050_full_sphere_acc.csv": "g",
+    "sunsided_mpu6050_unmoved-with-x-pointing-forward_acc.csv": "g",
+    "sunsided_mpu6050_unmoved-with-z-pointing-front-and-x-up_acc.csv": "g",
+    "sunsided_mpu6050_unmoved-with-z-pointing-front-and-y-down_acc.csv": "g",
+}
+
+
+def heading_p95_against(cal: Calibration, ref: Calibration, tilt_deg: float, inclination: float = 60.0) -> float:
+    """95th percentile of |heading(cal) - heading(ref)| (degrees) over yaw and tilt, on readings ``ref`` explains."""
+    rot = attitudes(tilt_deg)
+    inc = math.radians(inclination)
+    m = ref.norm * np.array([0.0, math.cos(inc), -math.sin(inc)])
+    body = np.einsum("kji,j->ki", rot, m)  # R^T m
+    raw = ref.inverse_apply(body)
+    h = cal.apply(raw)
+    world = np.einsum("kij,kj->ki", rot, h)
+    psi = np.arctan2(world[:, 0], world[:, 1])
+    psi_ref = np.arctan2(np.einsum("kij,kj->ki", rot, body)[:, 0], np.einsum("kij,kj->ki", rot, body)[:, 1])
+    d = np.degrees(np.angle(np.exp(1j * (psi - psi_ref))))
+    return float(np.percentile(np.abs(d), 95))
+
+
+def batch(path: Path, sensor: str, unit: str) -> tuple[Calibration | None, str]:
+    """The batch fit as ``margcal calibrate`` makes it, and a note (the diagnosis when it needed one)."""
+    rec = read_recording(path, sensor=sensor)
+    try:
+        pts = still_samples(rec) if sensor == "accel" else np.asarray(rec.raw, dtype=np.float64)
+    except RecordingError as exc:
+        return None, f"none: {exc}"
+    cfg = config_for(sensor, unit)
+    try:
+        cal = fit(pts, model="sym", method="lm", sensor=sensor, unit=unit)
+        why, high = check(cal, cfg), residual_note(cal, cfg)
+    except (ConvergenceError, DegenerateDataError) as exc:
+        cal, why, high = None, str(exc), ""
+    if not why and not high:
+        return cal, "lm"
+    res = rescue(None if sensor == "accel" else np.asarray(rec.t, dtype=np.float64), pts, failure=why or high,
+                 model="sym", norm=None, loss="linear", sensor=sensor, unit=unit, cfg=cfg, change_only=not why)
+    if res is None:
+        return cal, f"lm, warning: {high.split(':')[0]}"
+    fitted = [p for p in res.parts if p.calibration is not None]
+    if not fitted:
+        return None, f"{res.kind}: refused"
+    last = fitted[-1]
+    note = f"{res.kind}: {len(fitted)} calibrations, last used" if res.kind == "change" else res.kind
+    if last.prior_fit is not None and last.prior_fit.from_prior:
+        note += f" (from prior: {', '.join(last.prior_fit.from_prior)})"
+    return last.calibration, note
+
+
+def study(path: Path) -> dict[str, object]:
+    unit = UNITS[path.name]
+    sensor = "accel" if path.stem.endswith("_acc") else "mag"
+    out = replay(path, sensor=sensor, unit=unit, status_every=0.0, progress=False)
+    cal = out["calibrators"][sensor]
+    st = cal.status()
+    first = next((e["t"] for e in out["timeline"] if e["kind"] == "calibrated"), None)
+    ref, note = batch(path, sensor, unit)
+    row: dict[str, object] = {"file": path.name, "unit": unit, "n": st.samples_seen, "state": st.state.value,
+                              "why": st.message, "first": first, "batch": note, "offset": None, "level": None,
+                              "tilt30": None, "changes": st.changes_detected}
+    stream = cal.calibration
+    if stream is not None and ref is not None:
+        radius = ref.raw_radius
+        row["offset"] = 100.0 * float(np.linalg.norm(stream.offset - ref.offset)) / radius
+        if sensor == "mag":
+            row["level"] = heading_p95_against(stream, ref, 0.0)
+            row["tilt30"] = heading_p95_against(stream, ref, 30.0)
+    if st.state is State.CALIBRATED and not st.message.startswith("calibrated"):
+        row["why"] = st.message
+    return row
+
+
+def _f(x: object, fmt: str) -> str:
+    return "—" if x is None else fmt.format(x)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", type=Path, default=DATA)
+    ap.add_argument("--markdown", action="store_true", help="print a README table")
+    args = ap.parse_args(argv)
+    if not args.data.is_dir():
+        print(f"no real recordings at {args.data}", file=sys.stderr)
+        return 1
+    rows = [study(args.data / name) for name in sorted(UNITS) if (args.data / name).exists()]
+    print("| recording | unit | stream | first calibration | why (final status) | batch fit | offset diff | "
+          "heading p95 level / 30° |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- |")
+    for r in rows:
+        why = str(r["why"]).replace("|", "/")
+        if len(why) > 160:
+            why = why[:157] + "..."
+        print(f"| {r['file']} | {r['unit']} | {r['state']}{' (' + str(r['changes']) + ' change)' if r['changes'] else ''}"
+              f" | {_f(r['first'], '{:.0f} s')} | {why} | {r['batch']} | {_f(r['offset'], '{:.2f} %')} | "
+              f"{_f(r['level'], '{:.2f}°')} / {_f(r['tilt30'], '{:.2f}°')} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

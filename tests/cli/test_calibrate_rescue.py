@@ -1,0 +1,141 @@
+"""``margcal calibrate`` on data a plain fit cannot take: it says why and fits what the data determine.
+
+Recordings from the independent generator (``tests/independent``), in µT, and the real recordings of
+``../shared/data/real`` where present.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from types import ModuleType
+
+import numpy as np
+import pytest
+
+from ros_margcal.cli import main
+from ros_margcal.model.calibration_file import load_calibrations
+
+
+def _csv(independent: ModuleType, tmp_path: Path, name: str, **kw: object) -> tuple[Path, dict]:
+    rec = independent.generate("mag", seed=11, unit="uT", **kw)
+    path = tmp_path / f"{name}.csv"
+    independent.write_csv(path, rec)
+    return path, rec
+
+
+def _calibrate(path: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], *extra: str) -> tuple[int, str, Path]:
+    out = tmp_path / "fit.json"
+    rc = main(["calibrate", str(path), "--sensor", "mag", "--model", "sym", "--method", "lm", "--json", str(out), *extra])
+    return rc, capsys.readouterr().out, out
+
+
+def test_a_full_hemisphere_is_fitted_plainly(independent: ModuleType, tmp_path: Path,
+                                             capsys: pytest.CaptureFixture[str]) -> None:
+    """Tilts up to 80 degrees determine the model: the plain fit stands, no diagnosis is printed."""
+    path, rec = _csv(independent, tmp_path, "hemi", motion="hemisphere", duration_s=120.0)
+    rc, text, out = _calibrate(path, tmp_path, capsys)
+    assert rc == 0 and "requested fit" not in text
+    d = json.loads(out.read_text())
+    assert d["method"] == "lm"
+    assert np.linalg.norm(np.array(d["offset"]) - rec["truth"]["offset"]) < 0.01 * rec["truth"]["norm"]
+
+
+def test_partial_coverage_is_fitted_with_the_prior_and_says_which_parameters(
+        independent: ModuleType, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A ground robot (yaw, 5 degrees of tilt): lm does not converge; the prior fit names updated and prior terms."""
+    path, rec = _csv(independent, tmp_path, "ground", motion="ground", duration_s=120.0)
+    rc, text, out = _calibrate(path, tmp_path, capsys)
+    assert rc == 0
+    assert "requested fit: lm did not converge" in text and "partial coverage" in text
+    assert "updated by the data:" in text and "from the prior:" in text and "predicted heading error p95" in text
+    d = json.loads(out.read_text())
+    assert d["diagnosis"] == "partial" and d["from_prior"] and d["updated"]
+    assert {"b_x", "b_y"} <= set(d["updated"])
+    truth = rec["truth"]
+    assert np.linalg.norm(np.array(d["offset"])[:2] - truth["offset"][:2]) < 0.03 * truth["norm"]
+
+
+def test_a_static_recording_is_refused_with_the_reason(independent: ModuleType, tmp_path: Path,
+                                                       capsys: pytest.CaptureFixture[str]) -> None:
+    """Static: only the norm is determined; nothing is fitted or written, exit code 3."""
+    path, _ = _csv(independent, tmp_path, "static", motion="static", duration_s=60.0)
+    rc, text, out = _calibrate(path, tmp_path, capsys)
+    assert rc == 3
+    assert "static recording" in text and "determine the field norm only" in text
+    assert not out.exists()
+
+
+def test_a_mid_way_hard_iron_change_gives_two_calibrations(independent: ModuleType, tmp_path: Path,
+                                                           capsys: pytest.CaptureFixture[str]) -> None:
+    """A hard-iron jump at half time: the change is located and each side fitted to within 1 % of its truth."""
+    path, rec = _csv(independent, tmp_path, "jump", motion="tumble", duration_s=120.0, effect="hard_iron_jump",
+                     magnitude=0.5)
+    yaml_out = tmp_path / "cal.yaml"
+    rc, text, out = _calibrate(path, tmp_path, capsys, "-o", str(yaml_out))
+    assert rc == 0
+    assert "the offset changed at t = " in text and "2 calibrations" in text
+    parts = json.loads(out.read_text())["calibrations"]
+    assert [p["diagnosis"] for p in parts] == ["change", "change"]
+    truth = rec["truth"]
+    for part, want in zip(parts, (truth["offset"], truth["offset_after"]), strict=True):
+        assert np.linalg.norm(np.array(part["offset"]) - want) < 0.01 * truth["norm"]
+    cals = load_calibrations(yaml_out)
+    assert set(cals) == {"mag", "mag_1"}
+    np.testing.assert_allclose(cals["mag"].offset, parts[1]["offset"])
+
+
+def test_no_rescue_keeps_the_error(independent: ModuleType, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """--no-rescue: the fit's own error, exit code 2."""
+    path, _ = _csv(independent, tmp_path, "static", motion="static", duration_s=30.0)
+    rc = main(["calibrate", str(path), "--sensor", "mag", "--model", "sym", "--method", "lm", "--no-rescue"])
+    assert rc == 2
+    assert "did not converge" in capsys.readouterr().err
+
+
+def _real(real_data_dir: Path, name: str) -> Path:
+    path = real_data_dir / name
+    if not path.exists():
+        pytest.skip(f"{name} not present")
+    return path
+
+
+def test_real_hemisphere_is_fitted_with_the_prior(real_data_dir: Path, tmp_path: Path,
+                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    """The real one-hemisphere LSM9DS1 set: lm does not converge; the prior fit reports and stays plausible."""
+    path = _real(real_data_dir, "hamagure_lsm9ds1_hemisphere_mag.csv")
+    rc, text, out = _calibrate(path, tmp_path, capsys, "--unit", "gauss")
+    assert rc == 0 and "partial coverage" in text
+    d = json.loads(out.read_text())
+    assert d["method"] == "map" and d["stats"]["rms_relative"] < 0.02
+
+
+def test_real_static_recording_is_refused(real_data_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The 10-minute static HMC5883L log: refused with the reason."""
+    rc, text, _ = _calibrate(_real(real_data_dir, "sunsided_hmc5883l_static_10min_mag.csv"), tmp_path, capsys, "--unit", "gauss")
+    assert rc == 3 and "static recording" in text
+
+
+def test_real_attached_magnet_is_located(real_data_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """BROAD 32 (a magnet 1 cm away in mid-recording): the change is located and several calibrations fitted."""
+    rc, text, out = _calibrate(_real(real_data_dir, "broad_32_disturbed_attached_magnet_1cm_mag.csv"), tmp_path, capsys, "--unit", "uT")
+    assert rc == 0 and "the offset changed at t = " in text
+    parts = json.loads(out.read_text())["calibrations"]
+    assert len(parts) >= 2
+    # the magnet phase: the offset of the windowed sphere fits, about 58 uT along z
+    assert any(abs(p["offset"][2] - 58.0) < 5.0 for p in parts)
+
+
+def test_motion_in_accelerometer_data_keeps_the_plain_fit_with_a_warning(independent: ModuleType, tmp_path: Path,
+                                                                          capsys: pytest.CaptureFixture[str]) -> None:
+    """All samples of a moving accelerometer: a high residual but no offset change, so the plain fit stands."""
+    rec = independent.generate("accel", "rest_and_move", duration_s=60.0, seed=3)
+    path = tmp_path / "acc.csv"
+    independent.write_csv(path, rec)
+    out = tmp_path / "fit.json"
+    rc = main(["calibrate", str(path), "--sensor", "accel", "--samples", "all", "--json", str(out)])
+    captured = capsys.readouterr()
+    assert rc == 0
+    assert "residual RMS" in captured.err and "no offset change located" in captured.err
+    assert "requested fit" not in captured.out
+    assert json.loads(out.read_text())["method"] == "lm"
