@@ -100,6 +100,15 @@ class PipelineConfig:
     gate_window_s: float = 2.0
     gate_cv_threshold: float = 3e-3
     gate_gyro_threshold: float | None = None
+    gate_gyro_window_s: float = 1.0  # with a gyro reading on every sample: the still window (Gietzelt's 2 s without)
+    gate_gyro_rest_threshold: float = 0.05  # rad/s: |omega| below this on every sample of the gyro-aided window
+    # partial calibration (stream/observable.py)
+    partial_fit: bool = True  # magnetometer: fit what the motion makes observable when the full validator refuses
+    max_heading_p95_deg: float = 2.0  # publish a partial fit when its predicted heading p95 at the tilt seen is within
+    partial_period_s: float = 0.2  # one sample of the partial fit's time series per this many seconds ...
+    partial_samples: int = 1500  # ... the last this many (300 s at the defaults)
+    prior_inflate: float = 4.0  # covariance factor on a previous calibration used as the prior
+    heading_inclination_deg: float | None = None  # field inclination for the heading figures (None: from the data)
 
     @property
     def min_period_s(self) -> float:
@@ -203,6 +212,10 @@ class FieldSpec:
             if self.none_ok:
                 return
             raise ConfigError(f"{name} must not be None")
+        if self.kind is bool:
+            if not isinstance(value, bool):
+                raise ConfigError(f"{name} must be true or false, got {value!r}")
+            return
         if self.kind is str:
             if not isinstance(value, str):
                 raise ConfigError(f"{name} must be a string, got {value!r}")
@@ -265,6 +278,14 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "gate_window_s": _real(1e-3, 600.0),
     "gate_cv_threshold": _ratio(1.0),
     "gate_gyro_threshold": _ratio(100.0, none_ok=True),
+    "gate_gyro_window_s": _real(1e-3, 600.0),
+    "gate_gyro_rest_threshold": _ratio(100.0),
+    "partial_fit": FieldSpec(bool),
+    "max_heading_p95_deg": _real(0.0, 180.0, open_lo=True),
+    "partial_period_s": _real(0.0, 3600.0),
+    "partial_samples": FieldSpec(int, 10, 100_000),
+    "prior_inflate": _real(1.0, 1e6),
+    "heading_inclination_deg": _real(-90.0, 90.0, none_ok=True),
     "max_stamp_gap_s": _real(1e-3, _DAY_S),
     "new_time_base_after": FieldSpec(int, 2, 1_000),
 }

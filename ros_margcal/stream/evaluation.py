@@ -26,6 +26,7 @@ from ..model.calibration import Calibration
 from ..model.errors import MargCalError
 from ..model.fitting import fit
 from .config import PipelineConfig, guard_rails
+from .partial import PartialCalibration
 from .status import Event, EventKind, State, pct
 
 __all__ = ["Evaluation"]
@@ -35,7 +36,7 @@ log = logging.getLogger("ros_margcal.stream.calibrator")  # one logger name for 
 Array = NDArray[np.float64]
 
 
-class Evaluation:
+class Evaluation(PartialCalibration):
     """Validation, fit and guard rails of a ``SensorCalibrator`` (a mixin: see the module docstring)."""
 
     # an evaluation on materially unchanged data is skipped (see _unchanged)
@@ -120,7 +121,7 @@ class Evaluation:
         data, so rich motion (new bins, a growing buffer) is evaluated at the usual cadence and motion
         that cannot change the verdict (a ground robot's yaw turns) ever more rarely.
         """
-        if self._last_full is None:
+        if self._last_full is None or self._partial_wanted():
             return False
         (objs0, (n0, cov0, ch0, chd0, res0)), (objs, (n, cov, ch, chd, res)) = self._last_full, self._signature()
         if any(x is not y for x, y in zip(objs, objs0, strict=True)) or (cov, ch, chd) != (cov0, ch0, chd0):
@@ -196,6 +197,8 @@ class Evaluation:
             events = [Event(EventKind.REJECTED, t, self.sensor, f"not fitted: {self._last_reason}")] if force else []
             if self._cal is None or self._changed:
                 events += self._set_state(State.COLLECTING, t)
+            if self._partial_wanted():  # what the motion makes observable (stream/observable.py)
+                return events, self._partial_job(self._fit_job(t))
             return events, None
         events = []
         if self._cal is None or self._changed:
@@ -224,6 +227,8 @@ class Evaluation:
         """The fit and its guard rails on a snapshot: (calibration, "") or (None, the reason)."""
         cfg: PipelineConfig = job["config"]
         pts = job["points"]
+        if job.get("partial"):
+            return self._partial_compute(job)
         try:
             scale = None
             if cfg.f_scale_rel is not None:
@@ -235,6 +240,8 @@ class Evaluation:
             reason = guard_rails(cal, cfg, job["recent"], job["current"])
         except (ValueError, ArithmeticError) as exc:  # MargCalError is a ValueError, as is LinAlgError
             return None, f"fit failed: {exc}"
+        if not reason:
+            self._full_figures(job, cal)
         return (None, reason) if reason else (cal, "")
 
     def _fit_finish(self, job: dict[str, Any], result: tuple[Calibration | None, str]) -> list[Event]:
@@ -244,15 +251,19 @@ class Evaluation:
             log.debug("%s: fit from t=%.2f s dropped: reset, change or new calibration meanwhile", self.sensor, t)
             return []
         cal, reason = result
+        if cal is None and job.get("partial"):  # not good enough yet: keep collecting, say why
+            self._partial_note = reason
+            return []
         if cal is None:
             return self._reject(t, reason)
         self._install(cal)
+        note = self._partial_installed(job, cal)
         self._last_full = self._signature()
         self.fits_accepted += 1
         self._last_rejection = ""
         assert cal.stats is not None
-        msg = (f"calibrated from {len(job['points'])} samples: residual {pct(cal.stats.rms_relative)}, "
-               f"offset {np.array2string(cal.offset, precision=4)}")
+        msg = (f"calibrated from {len(job.get('series', job['points']))} samples: residual {pct(cal.stats.rms_relative)}, "
+               f"offset {np.array2string(cal.offset, precision=4)}{note}")
         log.info("%s: %s", self.sensor, msg)
         return [*self._set_state(State.CALIBRATED, t), Event(EventKind.CALIBRATED, t, self.sensor, msg, cal)]
 
