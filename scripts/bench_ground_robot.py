@@ -30,10 +30,12 @@ from typing import Any
 
 import numpy as np
 
-from ros_margcal.stream.calibrator import EventKind, SensorCalibrator
+from ros_margcal.stream.calibrator import EventKind, PipelineConfig, SensorCalibrator
 
 TUNING = (1, 2, 3, 11, 12, 13)
 HELD_OUT = tuple(range(100, 110))
+OVERRIDES: dict[str, Any] = {}
+"""Options of the magnetometer calibrator (``--set name=value``)."""
 
 
 def _generator() -> Any:
@@ -47,7 +49,7 @@ def _generator() -> Any:
 
 
 def _run(rec: dict[str, Any], sensor: str = "mag", gyro: bool = False) -> tuple[SensorCalibrator, list[Any]]:
-    cal = SensorCalibrator(sensor)
+    cal = SensorCalibrator(sensor, PipelineConfig.for_sensor(sensor, **OVERRIDES) if sensor == "mag" else None)
     events = []
     g = rec["gyro"] if (gyro and rec.get("gyro") is not None) else [None] * len(rec["t"])
     for t, v, w in zip(rec["t"].tolist(), rec["xyz"], g, strict=True):
@@ -78,6 +80,10 @@ def ground_case(gen: Any, seed: int, tilt: float, seconds: float) -> dict[str, f
     return out
 
 
+def _span(r: np.ndarray) -> str:
+    return f"{np.nanmin(r):5.2f}-{np.nanmax(r):5.2f}" if len(r) and np.isfinite(r).any() else "  n/a"
+
+
 def ground(gen: Any, quick: bool, seconds: float) -> None:
     print(f"ground robot, {seconds:.0f} s at 50 Hz, 30 uT hard iron (independent generator)")
     print(f"  {'seeds':9s} {'tilt':>4s} {'calibrated':>10s} {'first s':>8s} {'first lvl':>9s} {'worst lvl':>9s} "
@@ -90,11 +96,10 @@ def ground(gen: Any, quick: bool, seconds: float) -> None:
             ok = np.isfinite(col["first"])
             med = {k: (float(np.median(v[ok])) if ok.any() else np.nan) for k, v in col.items()}
             rl, rt = col["level_pred"][ok] / col["level"][ok], col["tilt30_pred"][ok] / col["tilt30"][ok]
-            rng = (lambda r: f"{np.nanmin(r):5.2f}-{np.nanmax(r):5.2f}" if len(r) and np.isfinite(r).any() else "  n/a")
             print(f"  {name:9s} {tilt:4.0f} {ok.sum():4d}/{len(seeds):<5d} {med['first']:8.0f} {med['first_level']:9.2f} "
                   f"{np.nanmax(col['worst_level']) if ok.any() else np.nan:9.2f} "
                   f"{med['level']:8.2f}/{med['level_pred']:<9.2f} {med['tilt30']:9.2f}/{med['tilt30_pred']:<10.2f} "
-                  f"{rng(rl):>14s} {rng(rt):>13s} {med['n_updated']:4.0f}")
+                  f"{_span(rl):>14s} {_span(rt):>13s} {med['n_updated']:4.0f}")
     print("  (medians over the calibrated seeds; worst lvl: the worst measured level p95 of any published calibration)")
 
 
@@ -118,7 +123,8 @@ def rich(gen: Any, quick: bool) -> None:
                                symmetric_soft_iron=True)
             cal, _ = _run(rec)
             c = cal.calibration
-            ends.append((_p95(gen, c, rec["truth"], 0.0), _p95(gen, c, rec["truth"], 30.0)) if c is not None else (np.nan, np.nan))
+            tr = rec["truth"]
+            ends.append((_p95(gen, c, tr, 0.0), _p95(gen, c, tr, 30.0)) if c is not None else (np.nan, np.nan))
         e = np.array(ends)
         print(f"{motion:10s} (120 s, 3 seeds): final heading p95 level {np.nanmin(e[:, 0]):.2f}-{np.nanmax(e[:, 0]):.2f} deg, "
               f"30 deg {np.nanmin(e[:, 1]):.2f}-{np.nanmax(e[:, 1]):.2f} deg")
@@ -172,7 +178,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--quick", action="store_true", help="two seeds per group")
     p.add_argument("--seconds", type=float, default=300.0, help="ground-robot recording length")
     p.add_argument("--only", choices=("ground", "rich", "accel"), help="one group of cases")
+    p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                   help="a magnetometer option, e.g. max_heading_p95_deg=2.5 (a number or true/false)")
     args = p.parse_args(argv)
+    for item in args.set:
+        name, value = item.split("=", 1)
+        OVERRIDES[name] = value == "true" if value in ("true", "false") else (int(value) if value.isdigit() else float(value))
     gen = _generator()
     if args.only in (None, "ground"):
         ground(gen, args.quick, args.seconds)

@@ -107,6 +107,7 @@ class PipelineConfig:
     max_heading_p95_deg: float = 2.0  # publish a partial fit when its predicted heading p95 at the tilt seen is within
     partial_period_s: float = 0.2  # one sample of the partial fit's time series per this many seconds ...
     partial_samples: int = 1500  # ... the last this many (300 s at the defaults)
+    partial_max_tilt_deg: float = 45.0  # a partial fit only for a ring or band: data tilted at most this much
     prior_inflate: float = 4.0  # covariance factor on a previous calibration used as the prior
     heading_inclination_deg: float | None = None  # field inclination for the heading figures (None: from the data)
 
@@ -285,6 +286,7 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "partial_period_s": _real(0.0, 3600.0),
     "partial_samples": FieldSpec(int, 10, 100_000),
     "prior_inflate": _real(1.0, 1e6),
+    "partial_max_tilt_deg": _real(0.0, 90.0),
     "heading_inclination_deg": _real(-90.0, 90.0, none_ok=True),
     "max_stamp_gap_s": _real(1e-3, _DAY_S),
     "new_time_base_after": FieldSpec(int, 2, 1_000),

@@ -24,7 +24,11 @@ percentile spread of the calibrated field's elevation over the series: roll and 
 elevation by up to ``±a``) and the field inclination seen (``heading.inclination_deg``, z axis up on
 average). A partial calibration is published when that figure is at most ``max_heading_p95_deg`` and the
 guard rails (``config.guard_rails`` without the parameter-uncertainty check, which the heading figure
-replaces: the prior-held parameters are uncertain by construction) pass. The level and ±30° figures go
+replaces: the prior-held parameters are uncertain by construction) pass, and the data are a ring or band
+(tilt seen at most ``partial_max_tilt_deg``, 45° by default: richer motion is the full path's, unchanged).
+A refit replaces a partial
+calibration when its predicted heading figure at the tilt seen is lower (instead of the not-worse check
+on the last few seconds' residual, which noise decides as often as the data). The level and ±30° figures go
 into the status, so a user sees that a calibration good when level is poor once the robot tilts past
 what it covered.
 
@@ -136,7 +140,8 @@ def heading_figures(cal: Calibration, points: Array, cfg: PipelineConfig) -> tup
 
 
 def partial_fit(series: Array, prior: Calibration | None, cfg: PipelineConfig, *, recent: Array,
-                current: Calibration | None, stamp: float, sensor: str) -> PartialResult:
+                current: Calibration | None, stamp: float, sensor: str,
+                current_heading: float | None = None) -> PartialResult:
     """The MAP fit of ``series`` (time-ordered raw samples) from ``prior`` and its verdict (module docstring)."""
     kind = "previous" if prior is not None else "broad"
     try:
@@ -165,11 +170,20 @@ def partial_fit(series: Array, prior: Calibration | None, cfg: PipelineConfig, *
     except (MargCalError, ValueError, ArithmeticError) as exc:
         return PartialResult(None, (), SYM_NAMES, kind, math.nan, math.inf, None, f"partial fit failed: {exc}")
     reason = ""
-    if not seen <= cfg.max_heading_p95_deg:
+    if not tilt <= cfg.partial_max_tilt_deg:
+        reason = (f"partial fit: the data are tilted up to {tilt:.0f} deg > {cfg.partial_max_tilt_deg:g} deg, not a "
+                  "ring or band: the full path decides")
+    elif not seen <= cfg.max_heading_p95_deg:
         reason = (f"partial fit: predicted heading error {seen:.2f} deg p95 at the tilt seen ({tilt:.1f} deg) "
                   f"> {cfg.max_heading_p95_deg:g} deg")
+    elif current_heading is not None and not seen < current_heading:
+        reason = (f"partial refit: predicted heading error {seen:.2f} deg p95 not below the current "
+                  f"calibration's {current_heading:.2f} deg")
     else:
-        rails = guard_rails(cal.replace(covariance=None, parameter_names=()), cfg, recent, current)
+        # a partial refit replaces a partial calibration on its predicted heading (above), not on the
+        # residual of the last few seconds, which noise decides as often as the data
+        rails = guard_rails(cal.replace(covariance=None, parameter_names=()), cfg, recent,
+                            None if current_heading is not None else current)
         if rails:
             reason = f"partial fit: {rails}"
     return PartialResult(cal, pf.updated, pf.from_prior, kind, tilt, seen, figs, reason)

@@ -7,10 +7,11 @@ estimate and the decision live in ``observable`` (see its docstring). Here:
   gate's still means) (one sample per ``partial_period_s``, the last
   ``partial_samples``), fed from the sample path;
 - the prior: the last *full* calibration accepted or loaded (with a covariance over the symmetric
-  parameters; a full fit gets one from ``observable.with_sym_covariance``), else the broad prior;
-- when a partial fit is due: the full validator refused, ``partial_fit`` is on, there is no calibration, a sensor change is pending, or the current one is
-  partial; and the series grew by a quarter (``PARTIAL_GROWTH``) since the last attempt, which
-  overrides the skip rule's back-off (a ground robot's buffer stops changing, its series does not);
+  parameters; a full fit gets one from ``observable.heading_figures``), else the broad prior;
+- when a partial fit is due: the full validator refused, ``partial_fit`` is on, there is no
+  calibration, a sensor change is pending, or the current one is partial; and the series grew by a
+  quarter (``PARTIAL_GROWTH``) since the last attempt, which overrides the skip rule's back-off (a
+  ground robot's buffer stops changing, its series does not);
 - the status fields: ``partial``, ``updated_parameters``, ``prior_parameters``, the predicted heading
   p95 level and at ±30° (also for a full magnetometer calibration), the tilt seen.
 
@@ -59,7 +60,7 @@ class PartialCalibration:
         self._prior: Calibration | None = None
 
     def _series_push(self, t: float, x: float, y: float, z: float) -> None:
-        if t - self._series_t < self.config.partial_period_s:
+        if t - self._series_t < self.config.partial_period_s - 1e-6:  # 1 us: stamps through sec/nanosec
             return
         self._series_t = t
         self._series.append((x, y, z))
@@ -81,11 +82,13 @@ class PartialCalibration:
     def _partial_job(self, job: dict[str, Any]) -> dict[str, Any]:
         """Turn a fit job into a partial one (the series and the prior join the snapshot)."""
         self._series_at_attempt = self._series_count
-        return {**job, "partial": True, "series": self._series_points(), "prior": self._prior}
+        cur = self._partial if (self._cal is not None and not self._changed) else None
+        return {**job, "partial": True, "series": self._series_points(), "prior": self._prior,
+                "current_heading": None if cur is None else cur.heading_seen_deg}
 
     def _partial_compute(self, job: dict[str, Any]) -> tuple[Calibration | None, str]:
         res = partial_fit(job["series"], job["prior"], job["config"], recent=job["recent"], current=job["current"],
-                          stamp=job["t"], sensor=self.sensor)
+                          stamp=job["t"], sensor=self.sensor, current_heading=job["current_heading"])
         job["result"] = res
         if res.reason or res.calibration is None:
             return None, res.reason or "partial fit failed"
@@ -137,7 +140,7 @@ class PartialCalibration:
         """The Status fields of the partial calibration and the heading figures."""
         p, f, cal = self._partial, self._figures, self._cal
         return {
-            "partial": p is not None and cal is not None,
+            "partial": p is not None and cal is not None and bool(p.from_prior),
             "updated_parameters": tuple(p.updated) if (p is not None and cal is not None) else (),
             "prior_parameters": tuple(p.from_prior) if (p is not None and cal is not None) else (),
             "heading_p95_level_deg": None if (f is None or cal is None) else f.level_deg,
