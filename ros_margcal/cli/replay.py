@@ -54,6 +54,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("--json", type=Path, metavar="FILE", help="write the status timeline and final calibrations as JSON")
     p.add_argument("--plot", type=Path, metavar="FILE.png", help="write the coverage plot (phi vs theta)")
     p.add_argument("-q", "--quiet", action="store_true", help="no timeline, only the final calibrations")
+    p.add_argument("--full-only", action="store_true",
+                   help="the full path alone: no partial or early MAP calibrations (the rule before issue 14)")
     p.add_argument("--validator", type=Path, metavar="FILE.json",
                    help="a trained validator (margcal train-validator) instead of the shipped one")
     p.set_defaults(func=run)
@@ -148,7 +150,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"replaying {path}" + (f" with the validator {args.validator}" if validator is not None else ""))
     printer = None if args.quiet else print
     result = replay(path, sensor=args.sensor, unit=args.unit, status_every=args.status_every, on_line=printer,
-                    validator=validator)
+                    validator=validator, options={"partial_fit": False} if args.full_only else None)
     cals: dict[str, SensorCalibrator] = result["calibrators"]
     truth = load_calibrations(truth_path) if truth_path is not None else {}
     summary: dict[str, Any] = {}

@@ -281,8 +281,8 @@ class SensorCalibrator(Evaluation):
         if self._buffer.push(t, (x, y, z)):
             self.kept += 1
         self._since_eval += 1
-        interval = cfg.recheck_interval_s if (self._cal is not None and not self._changed) else cfg.refit_min_interval_s
-        if self._since_eval >= cfg.refit_every and t - self._last_eval_t >= interval:
+        every, interval = self._cadence()
+        if self._since_eval >= every and t - self._last_eval_t >= interval:
             events += self._evaluate(t, force=False)
         return events
 

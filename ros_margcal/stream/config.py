@@ -108,6 +108,9 @@ class PipelineConfig:
     partial_period_s: float = 0.2  # one sample of the partial fit's time series per this many seconds ...
     partial_samples: int = 1500  # ... the last this many (300 s at the defaults)
     partial_max_tilt_deg: float = 45.0  # a partial fit only for a ring or band: data tilted at most this much
+    early_fit: bool = True  # rich motion, uncalibrated: publish a MAP fit once its predicted heading p95 is small ...
+    early_heading_p95_deg: float = 1.0  # ... at most this at +-30 deg tilt
+    early_interval_s: float = 0.5  # evaluation cadence while an early fit is close to passing
     prior_inflate: float = 4.0  # covariance factor on a previous calibration used as the prior
     heading_inclination_deg: float | None = None  # field inclination for the heading figures (None: from the data)
 
@@ -287,6 +290,9 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "partial_samples": FieldSpec(int, 10, 100_000),
     "prior_inflate": _real(1.0, 1e6),
     "partial_max_tilt_deg": _real(0.0, 90.0),
+    "early_fit": FieldSpec(bool),
+    "early_heading_p95_deg": _real(0.0, 180.0, open_lo=True),
+    "early_interval_s": _real(0.0, 3600.0),
     "heading_inclination_deg": _real(-90.0, 90.0, none_ok=True),
     "max_stamp_gap_s": _real(1e-3, _DAY_S),
     "new_time_base_after": FieldSpec(int, 2, 1_000),

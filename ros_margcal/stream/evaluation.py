@@ -155,13 +155,12 @@ class Evaluation(PartialCalibration):
 
     def _evaluate(self, t: float, *, force: bool) -> list[Event]:
         """A due (``force``: a requested) evaluation: skipped on unchanged data, recorded when deferring."""
-        cfg = self.config
         self._since_eval = 0
         self._last_eval_t = t
         if force:
             self._pending = None
         else:
-            interval = cfg.recheck_interval_s if (self._cal is not None and not self._changed) else cfg.refit_min_interval_s
+            interval = self._cadence()[1]
             if self._unchanged(t, interval):
                 return []
             if self.defer_evaluation:
@@ -182,7 +181,8 @@ class Evaluation(PartialCalibration):
         if n < cfg.min_points:
             self._predicted = None
             self._last_reason = f"{n} samples buffered, need {cfg.min_points}"
-            return [Event(EventKind.REJECTED, t, self.sensor, f"not fitted: {self._last_reason}")] if force else [], None
+            events = [Event(EventKind.REJECTED, t, self.sensor, f"not fitted: {self._last_reason}")] if force else []
+            return events, (self._partial_job(self._fit_job(t)) if self._partial_wanted() else None)
         self._indicators = self._buffer.indicators()
         try:
             pred = float(self.validator.predict_indicators(self._indicators))
@@ -221,7 +221,8 @@ class Evaluation(PartialCalibration):
     def _fit_job(self, t: float) -> dict[str, Any]:
         """A snapshot of what the fit needs (the fit itself may then run without the lock)."""
         return {"t": t, "points": self._buffer.points(), "recent": self._recent_points(), "current": self._cal,
-                "config": self.config, "buffer": self._buffer, "changes": self.changes}
+                "config": self.config, "buffer": self._buffer, "changes": self.changes,
+                "current_is_map": self._cal is not None and self._partial is not None}
 
     def _fit_compute(self, job: dict[str, Any]) -> tuple[Calibration | None, str]:
         """The fit and its guard rails on a snapshot: (calibration, "") or (None, the reason)."""
@@ -237,7 +238,8 @@ class Evaluation(PartialCalibration):
             cal = fit(pts, model=cfg.model, method=cfg.method, norm=cfg.reference_norm, loss=cfg.loss,
                       f_scale=scale, init="lin_auto", max_iter=cfg.max_iter, sensor=self.sensor, unit=cfg.unit)
             cal = cal.replace(stamp=job["t"])
-            reason = guard_rails(cal, cfg, job["recent"], job["current"])
+            # a MAP calibration (partial or early) is no yardstick for the full fit: no not-worse check against it
+            reason = guard_rails(cal, cfg, job["recent"], None if job.get("current_is_map") else job["current"])
         except (ValueError, ArithmeticError) as exc:  # MargCalError is a ValueError, as is LinAlgError
             return None, f"fit failed: {exc}"
         if not reason:
@@ -253,6 +255,7 @@ class Evaluation(PartialCalibration):
         cal, reason = result
         if cal is None and job.get("partial"):  # not good enough yet: keep collecting, say why
             self._partial_note = reason
+            self._partial_close(job)
             return []
         if cal is None:
             return self._reject(t, reason)

@@ -25,7 +25,14 @@ elevation by up to ``±a``) and the field inclination seen (``heading.inclinatio
 average). A partial calibration is published when that figure is at most ``max_heading_p95_deg`` and the
 guard rails (``config.guard_rails`` without the parameter-uncertainty check, which the heading figure
 replaces: the prior-held parameters are uncertain by construction) pass, and the data are a ring or band
-(tilt seen at most ``partial_max_tilt_deg``, 45° by default: richer motion is the full path's, unchanged).
+(tilt seen at most ``partial_max_tilt_deg``, 45° by default: richer motion is the full path's).
+
+**Early fit on rich motion** (``early_fit``). Before the first calibration, the same MAP fit on richer
+data (a tumble's first seconds, on the recent samples while the series is short) is
+published when its predicted heading p95 at ±30° tilt is at most ``early_heading_p95_deg`` (1°): the
+covariance says when the data suffice, instead of the validator's coverage rule and a fixed cadence.
+The full path then runs as before; its fits replace the early one without the not-worse check against
+it (``partial.PartialCalibration``), so the later calibrations are the full path's.
 A refit replaces a partial
 calibration when its predicted heading figure at the tilt seen is lower (instead of the not-worse check
 on the last few seconds' residual, which noise decides as often as the data). The level and ±30° figures go
@@ -163,19 +170,21 @@ def partial_fit(series: Array, prior: Calibration | None, cfg: PipelineConfig, *
                                  f"partial fit (not published for the {sensor}): the poses seen determine "
                                  f"{', '.join(pf.updated) or 'no parameter'}; "
                                  f"{', '.join(pf.from_prior) or 'none'} need more poses")
-        inc = _inclination(cfg, cal, series)
         tilt = tilt_seen_deg(cal, series)
-        seen = heading_p95(cal, tilt_deg=tilt, inclination=inc)
+        rich = not tilt <= cfg.partial_max_tilt_deg
+        inc = _inclination(cfg, cal, None if rich else series)  # "z up on average" holds for a ring, not a tumble
         figs = _figures(cal, inc)
+        seen = figs.tilt30_deg if rich else heading_p95(cal, tilt_deg=tilt, inclination=inc)
     except (MargCalError, ValueError, ArithmeticError) as exc:
         return PartialResult(None, (), SYM_NAMES, kind, math.nan, math.inf, None, f"partial fit failed: {exc}")
+    limit = cfg.early_heading_p95_deg if rich else cfg.max_heading_p95_deg
     reason = ""
-    if not tilt <= cfg.partial_max_tilt_deg:
+    if rich and not (cfg.early_fit and current is None):
         reason = (f"partial fit: the data are tilted up to {tilt:.0f} deg > {cfg.partial_max_tilt_deg:g} deg, not a "
                   "ring or band: the full path decides")
-    elif not seen <= cfg.max_heading_p95_deg:
-        reason = (f"partial fit: predicted heading error {seen:.2f} deg p95 at the tilt seen ({tilt:.1f} deg) "
-                  f"> {cfg.max_heading_p95_deg:g} deg")
+    elif not seen <= limit:
+        where = "at 30 deg tilt" if rich else f"at the tilt seen ({tilt:.1f} deg)"
+        reason = f"partial fit: predicted heading error {seen:.2f} deg p95 {where} > {limit:g} deg"
     elif current_heading is not None and not seen < current_heading:
         reason = (f"partial refit: predicted heading error {seen:.2f} deg p95 not below the current "
                   f"calibration's {current_heading:.2f} deg")

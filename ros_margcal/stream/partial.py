@@ -8,6 +8,8 @@ estimate and the decision live in ``observable`` (see its docstring). Here:
   ``partial_samples``), fed from the sample path;
 - the prior: the last *full* calibration accepted or loaded (with a covariance over the symmetric
   parameters; a full fit gets one from ``observable.heading_figures``), else the broad prior;
+- the early fit on rich motion (``observable``): before the first calibration, on the recent samples
+  (``recent_samples``, all of them while uncalibrated) while the series is shorter than ``min_points``;
 - when a partial fit is due: the full validator refused, ``partial_fit`` is on, there is no
   calibration, a sensor change is pending, or the current one is partial; and the series grew by a
   quarter (``PARTIAL_GROWTH``) since the last attempt, which overrides the skip rule's back-off (a
@@ -41,12 +43,17 @@ Array = NDArray[np.float64]
 class PartialCalibration:
     """Time series, prior and status of the partial calibration (a mixin: see the module docstring)."""
 
+    EARLY_CLOSE = 3.0
+    """Uncalibrated, with an early fit's predicted heading error within this factor of its limit, the
+    evaluation cadence is ``early_interval_s`` and half ``refit_every``: the stopping rule is the
+    covariance's, checked often while it is about to pass."""
     PARTIAL_GROWTH = 0.25
     """A new partial fit is due once the series received this share of its length in new samples."""
     sensor: str
     config: PipelineConfig
     _cal: Calibration | None
     _changed: bool
+    _recent_v: Any
 
     def _partial_reset(self) -> None:
         cfg = self.config
@@ -58,6 +65,24 @@ class PartialCalibration:
         self._partial_note = ""  # why the last partial fit was not published
         self._figures: HeadingFigures | None = None
         self._prior: Calibration | None = None
+        self._early_close = False  # the last early fit's predicted heading error was within EARLY_CLOSE x its limit
+
+    def _cadence(self) -> tuple[int, float]:
+        """(samples, seconds) between evaluations: ``recheck_interval_s`` while calibrated by the full
+        path, else ``refit_min_interval_s`` (also under a MAP calibration, so the full path takes over as
+        soon as it would have), shortened while an early fit is close (``EARLY_CLOSE``)."""
+        cfg = self.config
+        if self._cal is not None and not self._changed and self._partial is None:
+            return cfg.refit_every, cfg.recheck_interval_s
+        if self._cal is None and self._early_close and cfg.early_fit and cfg.partial_fit:
+            return max(1, cfg.refit_every // 2), min(cfg.refit_min_interval_s, cfg.early_interval_s)
+        return cfg.refit_every, cfg.refit_min_interval_s
+
+    def _partial_close(self, job: dict[str, Any]) -> None:
+        res: PartialResult | None = job.get("result")
+        cfg = self.config
+        limit = max(cfg.early_heading_p95_deg, cfg.max_heading_p95_deg)
+        self._early_close = res is not None and res.heading_seen_deg <= self.EARLY_CLOSE * limit
 
     def _series_push(self, t: float, x: float, y: float, z: float) -> None:
         if t - self._series_t < self.config.partial_period_s - 1e-6:  # 1 us: stamps through sec/nanosec
@@ -72,7 +97,8 @@ class PartialCalibration:
     def _partial_wanted(self) -> bool:
         """The full validator refused: is a partial fit worth a try now (module docstring)?"""
         cfg = self.config
-        if not cfg.partial_fit or len(self._series) < cfg.min_points:
+        early = cfg.early_fit and self._cal is None and len(self._recent_v) >= cfg.min_points
+        if not cfg.partial_fit or (len(self._series) < cfg.min_points and not early):
             return False
         if not (self._cal is None or self._changed or self._partial is not None):
             return False
@@ -83,7 +109,10 @@ class PartialCalibration:
         """Turn a fit job into a partial one (the series and the prior join the snapshot)."""
         self._series_at_attempt = self._series_count
         cur = self._partial if (self._cal is not None and not self._changed) else None
-        return {**job, "partial": True, "series": self._series_points(), "prior": self._prior,
+        series = self._series_points()
+        if len(series) < self.config.min_points:  # early: the recent samples until the series is long enough
+            series = np.array(self._recent_v, dtype=np.float64).reshape(-1, 3)
+        return {**job, "partial": True, "series": series, "prior": self._prior,
                 "current_heading": None if cur is None else cur.heading_seen_deg}
 
     def _partial_compute(self, job: dict[str, Any]) -> tuple[Calibration | None, str]:
