@@ -23,12 +23,11 @@ Run: ``python scripts/bench_ground_robot.py [--quick]`` (about a minute; ``--qui
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import sys
-from pathlib import Path
 from typing import Any
 
 import numpy as np
+from study_ground_robot import _generator  # scripts/ is on the path when a script in it runs
 
 from ros_margcal.stream.calibrator import EventKind, PipelineConfig, SensorCalibrator
 
@@ -36,16 +35,6 @@ TUNING = (1, 2, 3, 11, 12, 13)
 HELD_OUT = tuple(range(100, 110))
 OVERRIDES: dict[str, Any] = {}
 """Options of the magnetometer calibrator (``--set name=value``)."""
-
-
-def _generator() -> Any:
-    path = Path(__file__).resolve().parents[1] / "tests" / "independent" / "generator.py"
-    spec = importlib.util.spec_from_file_location("margcal_independent_generator", path)
-    if spec is None or spec.loader is None:
-        sys.exit(f"cannot load the independent generator from {path}")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def _run(rec: dict[str, Any], sensor: str = "mag", gyro: bool = False) -> tuple[SensorCalibrator, list[Any]]:

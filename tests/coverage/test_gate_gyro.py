@@ -2,28 +2,17 @@
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
 from types import ModuleType
 from typing import Any
 
 import numpy as np
 import pytest
+from conftest import INDEPENDENT
 
 from ros_margcal.coverage.gate import GyroAidedGate
 from ros_margcal.stream.calibrator import EventKind, SensorCalibrator
 
-
-def _load_generator() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("margcal_independent_generator",
-                                                  Path(__file__).parents[1] / "independent" / "generator.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-GEN = _load_generator()
+GEN: ModuleType = INDEPENDENT
 
 
 @pytest.fixture(scope="module")

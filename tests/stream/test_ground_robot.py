@@ -6,7 +6,6 @@ many seeds are in scripts/bench_ground_robot.py; here one fixed seed per claim.
 
 from __future__ import annotations
 
-import importlib.util
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -15,6 +14,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from conftest import INDEPENDENT
 
 from ros_margcal.model.errors import ConfigError
 from ros_margcal.ros.messages import status_to_diagnostic
@@ -44,16 +44,7 @@ def _feed(cal: SensorCalibrator, rec: dict[str, Any]) -> list[Any]:
     return out
 
 
-def _load_generator() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("margcal_independent_generator",
-                                                  Path(__file__).parents[1] / "independent" / "generator.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-GEN = _load_generator()
+GEN: ModuleType = INDEPENDENT
 
 
 @pytest.fixture(scope="module")
