@@ -70,13 +70,16 @@ class PartialCalibration:
     def _cadence(self) -> tuple[int, float]:
         """(samples, seconds) between evaluations: ``recheck_interval_s`` while calibrated by the full
         path, else ``refit_min_interval_s`` (also under a MAP calibration, so the full path takes over as
-        soon as it would have), shortened while an early fit is close (``EARLY_CLOSE``)."""
+        soon as it would have), shortened while an early fit is close (``EARLY_CLOSE``). One microsecond
+        less, so stamps that went through sec/nanosec (the node) give the cadence of float stamps (replay)."""
         cfg = self.config
         if self._cal is not None and not self._changed and self._partial is None:
-            return cfg.refit_every, cfg.recheck_interval_s
-        if self._cal is None and self._early_close and cfg.early_fit and cfg.partial_fit:
-            return max(1, cfg.refit_every // 2), min(cfg.refit_min_interval_s, cfg.early_interval_s)
-        return cfg.refit_every, cfg.refit_min_interval_s
+            every, interval = cfg.refit_every, cfg.recheck_interval_s
+        elif self._cal is None and self._early_close and cfg.early_fit and cfg.partial_fit:
+            every, interval = max(1, cfg.refit_every // 2), min(cfg.refit_min_interval_s, cfg.early_interval_s)
+        else:
+            every, interval = cfg.refit_every, cfg.refit_min_interval_s
+        return every, max(0.0, interval - 1e-6)
 
     def _partial_close(self, job: dict[str, Any]) -> None:
         res: PartialResult | None = job.get("result")
