@@ -104,7 +104,7 @@ class PipelineConfig:
     gate_gyro_rest_threshold: float = 0.05  # rad/s: |omega| below this on every sample of the gyro-aided window
     # partial calibration (stream/observable.py)
     partial_fit: bool = True  # magnetometer: fit what the motion makes observable when the full validator refuses
-    max_heading_p95_deg: float = 2.0  # publish a partial fit when its predicted heading p95 at the tilt seen is within
+    max_heading_p95_deg: float = 2.5  # publish a partial fit when its predicted heading p95 at the tilt seen is within
     partial_period_s: float = 0.2  # one sample of the partial fit's time series per this many seconds ...
     partial_samples: int = 1500  # ... the last this many (300 s at the defaults)
     partial_max_tilt_deg: float = 45.0  # a partial fit only for a ring or band: data tilted at most this much
