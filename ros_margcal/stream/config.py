@@ -108,6 +108,7 @@ class PipelineConfig:
     partial_period_s: float = 0.2  # one sample of the partial fit's time series per this many seconds ...
     partial_samples: int = 1500  # ... the last this many (300 s at the defaults)
     partial_max_tilt_deg: float = 45.0  # a partial fit only for a ring or band: data tilted at most this much
+    partial_min_azimuth: float = 0.9  # ... turned about body z: share of 36 azimuth sectors the field visits
     early_fit: bool = True  # rich motion, uncalibrated: publish a MAP fit once its predicted heading p95 is small ...
     early_heading_p95_deg: float = 1.0  # ... at most this at +-30 deg tilt
     early_interval_s: float = 0.5  # evaluation cadence while an early fit is close to passing
@@ -290,6 +291,7 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "partial_samples": FieldSpec(int, 10, 100_000),
     "prior_inflate": _real(1.0, 1e6),
     "partial_max_tilt_deg": _real(0.0, 90.0),
+    "partial_min_azimuth": _ratio(1.0),
     "early_fit": FieldSpec(bool),
     "early_heading_p95_deg": _real(0.0, 180.0, open_lo=True),
     "early_interval_s": _real(0.0, 3600.0),

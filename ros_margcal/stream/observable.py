@@ -12,7 +12,10 @@ matrix std ``0.1``). The data are a time series of the magnetometer decimated to
 ``partial_period_s`` (the last ``partial_samples`` of them, 300 s at the defaults): the direction
 buffer keeps only ``per_bin`` samples per bin, ~170 on a ring, too few to average the noise; in time
 order, the fit's covariance allows for coloured noise. The field norm is ``reference_norm`` when
-configured, else the prior's, else the radius of a linear sphere fit to the series. The information
+configured, else the prior's, else the radius of a linear sphere fit to the series; the MAP fit holds it
+fixed, so an estimated norm adds its own uncertainty (``NORM_REL_STD``, 5 %) to the covariance: the
+difference of a fit at ``1.05`` times the norm (matrix rescaled) as one more error direction, which on a
+ring falls on the vertical offset. The information
 matrix tells which parameter directions the data determine: a parameter whose posterior variance fell
 below a quarter of its prior variance is *updated*, the others *come from the prior* (their value
 and uncertainty). A yaw-only robot thus gets its horizontal hard iron and 2-D soft iron from turning
@@ -25,7 +28,10 @@ elevation by up to ``±a``) and the field inclination seen (``heading.inclinatio
 average). A partial calibration is published when that figure is at most ``max_heading_p95_deg`` and the
 guard rails (``config.guard_rails`` without the parameter-uncertainty check, which the heading figure
 replaces: the prior-held parameters are uncertain by construction) pass, and the data are a ring or band
-(tilt seen at most ``partial_max_tilt_deg``, 45° by default: richer motion is the full path's).
+(tilt seen at most ``partial_max_tilt_deg``, 45° by default: richer motion is the full path's) turned
+about the body z axis (the calibrated field visits at least ``partial_min_azimuth`` of 36 azimuth
+sectors, 90 % by default): the heading figures assume z up, and a cap about another axis (a sensor
+waved about one pose) would be judged at the wrong attitudes.
 
 **Early fit on rich motion** (``early_fit``). Before the first calibration, the same MAP fit on richer
 data (a tumble's first seconds, on the recent samples while the series is short) is
@@ -63,12 +69,15 @@ from ..model.fitting_prior import broad_prior, fit_with_prior
 from ..model.heading import heading_p95, inclination_deg
 from .config import PipelineConfig, guard_rails
 
-__all__ = ["DEFAULT_INCLINATION_DEG", "HeadingFigures", "PartialResult", "heading_figures", "partial_fit",
+__all__ = ["DEFAULT_INCLINATION_DEG", "HeadingFigures", "PartialResult", "azimuth_coverage", "heading_figures", "partial_fit",
            "sphere_radius", "tilt_seen_deg"]
 
 Array = NDArray[np.float64]
 
 SYM_NAMES = parameter_names("sym", scale_free=False)
+NORM_REL_STD = 0.05
+"""Relative std of a field norm estimated from partial data (the sphere through a band; 3-15 % off on
+the independent generator's ground robot at 60 s, within 5 % at 300 s)."""
 DEFAULT_INCLINATION_DEG = 60.0
 """Field inclination assumed for the heading figures of a full calibration (mid latitudes) unless configured."""
 
@@ -122,6 +131,25 @@ def tilt_seen_deg(cal: Calibration, raw: Array) -> float:
     return float(0.5 * (hi - lo))
 
 
+def azimuth_coverage(cal: Calibration, raw: Array, sectors: int = 36) -> float:
+    """Share of ``sectors`` azimuth sectors (about the body z axis) that the calibrated field visits."""
+    h = cal.apply(raw)
+    k = np.floor((np.arctan2(h[:, 1], h[:, 0]) + math.pi) / (2.0 * math.pi) * sectors).astype(int) % sectors
+    return len(np.unique(k)) / sectors
+
+
+def _with_norm_uncertainty(cal: Calibration, series: Array, prior: Calibration, inflate: float,
+                           stamp: float) -> Calibration:
+    """Add the uncertainty of a norm estimated from the data (``NORM_REL_STD``) to the covariance: the MAP
+    fit holds the norm fixed, and on a ring the vertical offset follows the norm it is given."""
+    n = prior.norm * (1.0 + NORM_REL_STD)
+    alt = fit_with_prior(series, prior.replace(norm=n), inflate=inflate, stamp=stamp, time_ordered=True).calibration
+    d = np.r_[alt.offset - cal.offset, [alt.matrix[i, j] * prior.norm / n - cal.matrix[i, j]
+                                        for i, j in ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))]]
+    assert cal.covariance is not None
+    return cal.replace(covariance=np.asarray(cal.covariance) + np.outer(d, d))
+
+
 def _inclination(cfg: PipelineConfig, cal: Calibration, raw: Array | None) -> float:
     if cfg.heading_inclination_deg is not None:
         return float(cfg.heading_inclination_deg)
@@ -165,6 +193,8 @@ def partial_fit(series: Array, prior: Calibration | None, cfg: PipelineConfig, *
             inflate = cfg.prior_inflate
         pf = fit_with_prior(series, prior, inflate=inflate, stamp=stamp, time_ordered=True)
         cal = pf.calibration
+        if sensor == "mag" and not cfg.reference_norm and kind == "broad":
+            cal = _with_norm_uncertainty(cal, series, prior, inflate, stamp)
         if sensor != "mag":
             return PartialResult(cal, pf.updated, pf.from_prior, kind, math.nan, math.inf, None,
                                  f"partial fit (not published for the {sensor}): the poses seen determine "
@@ -182,6 +212,9 @@ def partial_fit(series: Array, prior: Calibration | None, cfg: PipelineConfig, *
     if rich and not (cfg.early_fit and current is None):
         reason = (f"partial fit: the data are tilted up to {tilt:.0f} deg > {cfg.partial_max_tilt_deg:g} deg, not a "
                   "ring or band: the full path decides")
+    elif not rich and not azimuth_coverage(cal, series) >= cfg.partial_min_azimuth:
+        reason = (f"partial fit: the field turned through {100 * azimuth_coverage(cal, series):.0f} % of the azimuths "
+                  f"about the body z axis < {100 * cfg.partial_min_azimuth:.0f} %: not a ground robot's turns")
     elif not seen <= limit:
         where = "at 30 deg tilt" if rich else f"at the tilt seen ({tilt:.1f} deg)"
         reason = f"partial fit: predicted heading error {seen:.2f} deg p95 {where} > {limit:g} deg"
