@@ -72,3 +72,26 @@ def test_without_a_gyro_the_gate_is_gietzelts() -> None:
     out = [gate.push(ti, v) for ti, v in zip(t, xyz, strict=True)]
     first = next(i for i, r in enumerate(out) if r is not None)
     assert t[first] == pytest.approx(2.0, abs=0.02)
+
+
+def test_a_level_ground_robot_accelerometer_says_what_it_could_update() -> None:
+    """Gravity along body z only (yaw turns and drives, 1.5 s stops, a gyro): not calibrated, and the status
+    names the parameters those poses determine and those that need more poses."""
+    rng = np.random.default_rng(7)
+    t = np.arange(0.0, 80.0, 0.01)
+    moving = (t % 4.0) >= 1.5
+    ph = np.where(moving, ((t % 4.0) - 1.5) / 2.5, 0.0)
+    f = np.zeros((len(t), 3))
+    f[:, 0] = np.where(moving, 1.5 * np.sin(2 * np.pi * ph), 0.0)
+    f[:, 2] = 9.80665
+    gyro = rng.normal(0.0, 0.003, (len(t), 3))
+    gyro[:, 2] += np.where(moving, 0.6 * np.sin(np.pi * ph) ** 2, 0.0)
+    xyz = f @ np.diag([1.02, 0.99, 1.01]).T + np.array([0.3, -0.2, 0.25]) + rng.normal(0.0, 0.01, f.shape)
+    cal = SensorCalibrator("accel")
+    for ti, v, w in zip(t.tolist(), xyz, gyro, strict=True):
+        cal.push(ti, v, w)
+    assert cal.kept >= 12 and cal.calibration is None
+    msg = cal.status().message
+    assert "the poses seen determine" in msg and "need more poses" in msg
+    determined, missing = msg.split("the poses seen determine ")[1].split("; ")[:2]
+    assert "w_zz" in determined and "b_x" in missing and "b_y" in missing
