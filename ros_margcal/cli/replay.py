@@ -54,6 +54,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("--json", type=Path, metavar="FILE", help="write the status timeline and final calibrations as JSON")
     p.add_argument("--plot", type=Path, metavar="FILE.png", help="write the coverage plot (phi vs theta)")
     p.add_argument("-q", "--quiet", action="store_true", help="no timeline, only the final calibrations")
+    p.add_argument("--full-only", action="store_true",
+                   help="the full path alone: no partial or early MAP calibrations (the rule before issue 14)")
     p.add_argument("--validator", type=Path, metavar="FILE.json",
                    help="a trained validator (margcal train-validator) instead of the shipped one")
     p.set_defaults(func=run)
@@ -117,6 +119,19 @@ def _format_cal(cal: Calibration) -> str:
             f"    norm: {cal.norm:.6g} {cal.unit}\n{fit}    stamp: {cal.stamp:.2f} s")
 
 
+def _heading_lines(st: Status) -> list[str]:
+    """The predicted heading error and the partial calibration's parameters, for the final state."""
+    out = []
+    if st.heading_p95_level_deg is not None and st.heading_p95_tilt30_deg is not None:
+        out.append(f"    heading error (predicted p95): {st.heading_p95_level_deg:.2f} deg level, "
+                   f"{st.heading_p95_tilt30_deg:.2f} deg at +-30 deg tilt")
+    if st.updated_parameters:
+        seen = "" if st.tilt_seen_deg is None else f" (data tilted up to {st.tilt_seen_deg:.1f} deg)"
+        out.append(f"    {'partial' if st.partial else 'MAP'} calibration{seen}: updated {' '.join(st.updated_parameters)}; "
+                   f"from the prior: {' '.join(st.prior_parameters) or 'none'}")
+    return out
+
+
 def run(args: argparse.Namespace) -> int:
     """Entry of ``margcal replay``."""
     truth_path: Path | None = args.truth
@@ -135,7 +150,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"replaying {path}" + (f" with the validator {args.validator}" if validator is not None else ""))
     printer = None if args.quiet else print
     result = replay(path, sensor=args.sensor, unit=args.unit, status_every=args.status_every, on_line=printer,
-                    validator=validator)
+                    validator=validator, options={"partial_fit": False} if args.full_only else None)
     cals: dict[str, SensorCalibrator] = result["calibrators"]
     truth = load_calibrations(truth_path) if truth_path is not None else {}
     summary: dict[str, Any] = {}
@@ -147,6 +162,11 @@ def run(args: argparse.Namespace) -> int:
         print(f"  {s}: {st.state.value} [{st.level.name}] {st.message}")
         if c.calibration is not None:
             print(_format_cal(c.calibration))
+            for line in _heading_lines(st):
+                print(line)
+            entry["heading_p95_deg"] = {"level": st.heading_p95_level_deg, "tilt30": st.heading_p95_tilt30_deg}
+            entry["partial"] = {"partial": st.partial, "updated": list(st.updated_parameters),
+                                "from_prior": list(st.prior_parameters), "tilt_seen_deg": st.tilt_seen_deg}
             ref = _truth_for(truth, s)
             if ref is not None:
                 cmp_ = _compare(c.calibration, ref)

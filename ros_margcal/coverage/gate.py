@@ -29,6 +29,15 @@ first window that passes; the gate emits the window mean once the stretch has la
 and then at most once per ``window_s`` while it lasts (``max_per_stretch`` caps it), so a parked
 robot produces a trickle, not a flood, and each emitted mean averages a window of independent noise.
 
+**Gyro-aided rule** (``GyroAidedGate``). Gietzelt's two seconds are needed because the norm CV alone
+must tell rest from motion: a slow rotation at constant norm, or a move whose acceleration happens to
+keep ``|f|`` steady, passes a short window. With angular velocity on every sample, the gyro says the
+sensor is not rotating (``|omega|`` below ``gyro_threshold`` on every sample of the window) and the norm
+CV that it is not accelerating, so a window of ``gyro_window_s`` (default 1 s; at 100 Hz 100 samples,
+plenty for the CV and axis-spread estimates) is enough. Samples with a gyro reading go to a gate with
+the short window and the gyro check, samples without one to Gietzelt's two-second gate; a robot that
+rests 1-1.5 s between moves (a pick-and-place arm, a legged robot) then yields still samples.
+
 Bad input never raises: non-finite or malformed samples, repeated or backwards stamps are dropped and
 counted; a gap longer than the window (or a jump back by more than a window) resets the window.
 """
@@ -44,7 +53,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..model.errors import ConfigError
 
-__all__ = ["InactivityGate"]
+__all__ = ["GyroAidedGate", "InactivityGate"]
 
 _log = logging.getLogger(__name__)
 
@@ -303,3 +312,53 @@ class InactivityGate:
         self._n_emit_stretch += 1
         self._emitted += 1
         return np.array([mx, my, mz])
+
+
+class GyroAidedGate:
+    """Two inactivity gates: a short one with a gyro check for samples with angular velocity, and
+    Gietzelt's for samples without (see the module docstring's *gyro-aided rule*).
+
+    Args:
+        window_s, cv_threshold, gyro_threshold: the gate without a gyro (``InactivityGate``).
+        gyro_window_s: the window when the sample has a gyro reading, s.
+        gyro_rest_threshold: ``|omega|`` limit (rad/s) of the gyro-aided gate (``gyro_threshold`` when
+            that is set and smaller).
+    """
+
+    def __init__(self, window_s: float = 2.0, cv_threshold: float = 3e-3, gyro_threshold: float | None = None,
+                 *, gyro_window_s: float = 1.0, gyro_rest_threshold: float = 0.05) -> None:
+        rest = _check("gyro_rest_threshold", gyro_rest_threshold)
+        if gyro_threshold is not None:
+            rest = min(rest, float(gyro_threshold))  # type: ignore[type-var]
+        self.plain = InactivityGate(window_s=window_s, cv_threshold=cv_threshold, gyro_threshold=gyro_threshold)
+        self.aided = InactivityGate(window_s=gyro_window_s, cv_threshold=cv_threshold, gyro_threshold=rest)
+        self.gyro_seen = 0
+        """Samples that came with a gyro reading (went to the gyro-aided gate)."""
+
+    @property
+    def window_s(self) -> float:
+        """The still time in use: the gyro-aided window once a gyro has been seen, else Gietzelt's."""
+        return float(self.aided.window_s if self.gyro_seen else self.plain.window_s)  # type: ignore[arg-type]
+
+    @property
+    def window_stats(self) -> tuple[float, float]:
+        """The last evaluated (norm CV, per-axis spread / norm) of the window in use; inf before it is full."""
+        return (self.aided if self.gyro_seen else self.plain).window_stats
+
+    def reset(self) -> None:
+        """Empty both windows."""
+        self.plain.reset()
+        self.aided.reset()
+
+    @property
+    def counters(self) -> dict[str, int]:
+        """Both gates' counters summed, and ``gyro_seen``."""
+        a, b = self.plain.counters, self.aided.counters
+        return {**{k: a[k] + b[k] for k in a}, "gyro_seen": self.gyro_seen}
+
+    def push(self, t: float, xyz: ArrayLike, gyro: ArrayLike | None = None) -> NDArray[np.float64] | None:
+        """Offer one sample to the gate its gyro reading selects; the averaged still sample or None."""
+        if gyro is None:
+            return self.plain.push(t, xyz)
+        self.gyro_seen += 1
+        return self.aided.push(t, xyz, gyro)

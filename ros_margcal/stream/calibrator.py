@@ -12,8 +12,9 @@ magnetometer or accelerometer, in pure Python (no rclpy):
    calibration are kept, an ``EventKind.TIME_BASE`` event and the status say so. A gyro that is
    malformed, not finite or beyond ``intake.MAX_GYRO_RAD_S`` is ignored for that sample.
 2. *Gate.* Accelerometer samples go through ``gate.InactivityGate`` (Gietzelt et al. 2013, §2.4:
-   coefficient of variation of the norm over a 2 s window below 3e-3) and only its averaged still
-   samples go on; magnetometer samples go straight on.
+   coefficient of variation of the norm over a 2 s window below 3e-3; 1 s with a gyro reading below
+   ``gate_gyro_rest_threshold``, ``gate.GyroAidedGate``) and only its averaged still samples go on;
+   magnetometer samples go straight on (and into the partial calibration's time series).
 3. *Buffer.* ``coverage.DirectionBuffer`` keeps at most K samples per direction bin (newest
    replaces oldest) and the coverage indicators A–D of Olivares et al. 2013 (§3.1).
 4. *Validator.* At most every ``refit_every`` samples and ``refit_min_interval_s`` seconds
@@ -27,7 +28,9 @@ magnetometer or accelerometer, in pure Python (no rclpy):
    checks) before a fit is published: convergence, residual RMS limit, plausible field norm (gravity
    for the accelerometer, 20–70 µT for the Earth field), parameter uncertainty, offset limit, gain
    (axis ratio) limits, and the new fit must not be worse than the current calibration on the most
-   recent samples. A rejected fit is reported with its reason.
+   recent samples. A rejected fit is reported with its reason. When the validator refuses a
+   magnetometer buffer, the partial calibration (``partial``, ``observable``) fits what the motion
+   makes observable and publishes it when its predicted heading error at the tilt seen is small.
 7. *Rolling use.* Each sample's relative norm error under the current calibration is kept for the
    last ``recent_samples``; samples beyond ``outlier_threshold`` are not buffered (field
    disturbances). When the median over the last ``change_window`` samples has stayed above
@@ -59,7 +62,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..coverage.buffer import DirectionBuffer
-from ..coverage.gate import InactivityGate
+from ..coverage.gate import GyroAidedGate
 from ..model.calibration import Calibration
 from ..model.errors import ConfigError
 from ..validation.shipped import default_validator
@@ -107,6 +110,7 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         self.reset()
         if calibration is not None:
             self._install(calibration)
+            self._set_prior(calibration)
 
     # -- lifecycle --------------------------------------------------------------------------------
 
@@ -118,8 +122,9 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         self._buffer = DirectionBuffer(n_bins=cfg.n_bins, per_bin=cfg.per_bin)
         self._gate: Any = None
         if self.sensor == "accel":
-            self._gate = InactivityGate(window_s=cfg.gate_window_s, cv_threshold=cfg.gate_cv_threshold,
-                                        gyro_threshold=cfg.gate_gyro_threshold)
+            self._gate = GyroAidedGate(window_s=cfg.gate_window_s, cv_threshold=cfg.gate_cv_threshold,
+                                       gyro_threshold=cfg.gate_gyro_threshold, gyro_window_s=cfg.gate_gyro_window_s,
+                                       gyro_rest_threshold=cfg.gate_gyro_rest_threshold)
         self._recent_t: deque[float] = deque(maxlen=cfg.recent_samples)
         self._recent_v: deque[tuple[float, float, float]] = deque(maxlen=cfg.recent_samples)
         self._recent_r: deque[float] = deque(maxlen=cfg.recent_samples)
@@ -144,6 +149,7 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         self.fits_rejected = 0
         self.changes = 0
         self._w: tuple[float, ...] = ()
+        self._partial_reset()
         if cal is not None:
             self._install(cal)
 
@@ -151,7 +157,8 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         """Use new options from now on; buffer or gate options rebuild them (the calibration is kept)."""
         config = replace(config.checked(), sensor=self.sensor)
         rebuild = any(getattr(config, k) != getattr(self.config, k) for k in
-                      ("n_bins", "per_bin", "recent_samples", "gate_window_s", "gate_cv_threshold", "gate_gyro_threshold"))
+                      ("n_bins", "per_bin", "recent_samples", "gate_window_s", "gate_cv_threshold", "gate_gyro_threshold",
+                       "gate_gyro_window_s", "gate_gyro_rest_threshold"))
         self.config = config
         self._intake.config = config
         if rebuild:
@@ -164,6 +171,8 @@ class SensorCalibrator(ChangeDetection, Evaluation):
             self._state = State.COLLECTING
         else:
             self._install(cal)
+        self._partial, self._figures = None, None
+        self._set_prior(cal)
 
     @property
     def seen(self) -> int:
@@ -261,6 +270,7 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         self._recent_t.append(t)
         self._recent_v.append((x, y, z))
         self._recent_r.append(r)
+        self._series_push(t, x, y, z)
         if self._cal is not None and not self._changed:
             if r > cfg.change_threshold or self._suspect_since is not None:
                 events += self._check_change(t)
@@ -271,8 +281,8 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         if self._buffer.push(t, (x, y, z)):
             self.kept += 1
         self._since_eval += 1
-        interval = cfg.recheck_interval_s if (self._cal is not None and not self._changed) else cfg.refit_min_interval_s
-        if self._since_eval >= cfg.refit_every and t - self._last_eval_t >= interval:
+        every, interval = self._cadence()
+        if self._since_eval >= every and t - self._last_eval_t >= interval:
             events += self._evaluate(t, force=False)
         return events
 
@@ -335,11 +345,11 @@ class SensorCalibrator(ChangeDetection, Evaluation):
                 msg = f"collecting: every sample dropped so far: {self._intake.drop_summary()}"
             elif self.kept == 0 and self._gate is not None:
                 cv, axis = self._gate.window_stats
-                last = f", last window CV {cv:.2g}, axis spread {axis:.2g}" if math.isfinite(cv) else ""
-                msg = (f"collecting: no still sample from the inactivity gate yet: {self.passed} samples reached it, "
-                       f"none in a still {self.config.gate_window_s:g} s window (CV of |a| <= "
-                       f"{self.config.gate_cv_threshold:g}{last}); hold the sensor still in a few poses, or raise "
-                       f"{self.sensor}.gate_cv_threshold for a noisy sensor")
+                last = f" (last window CV {cv:.2g} vs {self.config.gate_cv_threshold:g}, axis spread {axis:.2g})" \
+                    if math.isfinite(cv) else ""
+                msg = (f"collecting: no still sample from the inactivity gate yet: {self.passed} samples reached it; "
+                       f"0 of {self.passed} samples still for >= {self._gate.window_s:g} s{last}: hold the sensor still "
+                       f"in a few poses, or raise {self.sensor}.gate_cv_threshold for a noisy sensor")
             else:
                 msg = f"collecting: {self._last_reason}"
             dropped = sum(self.dropped.values())
@@ -347,6 +357,7 @@ class SensorCalibrator(ChangeDetection, Evaluation):
                 msg += f"; {self._intake.drop_summary()}"
         if self._intake.learnt:
             msg += f"; {self._intake.learnt}"
+        msg += self._partial_message()
         if self._time_base_note:
             msg += f"; {self._time_base_note}"
         ind = self._indicators
@@ -367,4 +378,5 @@ class SensorCalibrator(ChangeDetection, Evaluation):
             fits_accepted=self.fits_accepted, fits_rejected=self.fits_rejected,
             last_rejection=self._last_rejection, changes_detected=self.changes, samples_passed=self.passed,
             time_base_resets=self._intake.time_base_resets, gyro_ignored=self._intake.gyro_ignored,
+            **self._partial_fields(),
         )

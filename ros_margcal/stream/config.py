@@ -108,6 +108,20 @@ class PipelineConfig:
     gate_window_s: float = 2.0
     gate_cv_threshold: float = 3e-3
     gate_gyro_threshold: float | None = None
+    gate_gyro_window_s: float = 1.0  # with a gyro reading on every sample: the still window (Gietzelt's 2 s without)
+    gate_gyro_rest_threshold: float = 0.05  # rad/s: |omega| below this on every sample of the gyro-aided window
+    # partial calibration (stream/observable.py)
+    partial_fit: bool = True  # magnetometer: fit what the motion makes observable when the full validator refuses
+    max_heading_p95_deg: float = 2.5  # publish a partial fit when its predicted heading p95 at the tilt seen is within
+    partial_period_s: float = 0.2  # one sample of the partial fit's time series per this many seconds ...
+    partial_samples: int = 1500  # ... the last this many (300 s at the defaults)
+    partial_max_tilt_deg: float = 45.0  # a partial fit only for a ring or band: data tilted at most this much
+    partial_min_azimuth: float = 0.9  # ... turned about body z: share of 36 azimuth sectors the field visits
+    early_fit: bool = True  # rich motion, uncalibrated: publish a MAP fit once its predicted heading p95 is small ...
+    early_heading_p95_deg: float = 1.0  # ... at most this at +-30 deg tilt
+    early_interval_s: float = 0.5  # evaluation cadence while an early fit is close to passing
+    prior_inflate: float = 4.0  # covariance factor on a previous calibration used as the prior
+    heading_inclination_deg: float | None = None  # field inclination for the heading figures (None: from the data)
 
     @property
     def min_period_s(self) -> float:
@@ -222,6 +236,10 @@ class FieldSpec:
             if self.none_ok:
                 return
             raise ConfigError(f"{name} must not be None")
+        if self.kind is bool:
+            if not isinstance(value, bool):
+                raise ConfigError(f"{name} must be true or false, got {value!r}")
+            return
         if self.kind is str:
             if not isinstance(value, str):
                 raise ConfigError(f"{name} must be a string, got {value!r}")
@@ -286,6 +304,19 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "gate_window_s": _real(1e-3, 600.0),
     "gate_cv_threshold": _ratio(1.0),
     "gate_gyro_threshold": _ratio(100.0, none_ok=True),
+    "gate_gyro_window_s": _real(1e-3, 600.0),
+    "gate_gyro_rest_threshold": _ratio(100.0),
+    "partial_fit": FieldSpec(bool),
+    "max_heading_p95_deg": _real(0.0, 180.0, open_lo=True),
+    "partial_period_s": _real(0.0, 3600.0),
+    "partial_samples": FieldSpec(int, 10, 100_000),
+    "prior_inflate": _real(1.0, 1e6),
+    "partial_max_tilt_deg": _real(0.0, 90.0),
+    "partial_min_azimuth": _ratio(1.0),
+    "early_fit": FieldSpec(bool),
+    "early_heading_p95_deg": _real(0.0, 180.0, open_lo=True),
+    "early_interval_s": _real(0.0, 3600.0),
+    "heading_inclination_deg": _real(-90.0, 90.0, none_ok=True),
     "max_stamp_gap_s": _real(1e-3, _DAY_S),
     "new_time_base_after": FieldSpec(int, 2, 1_000),
 }

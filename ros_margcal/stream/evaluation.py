@@ -26,6 +26,7 @@ from ..model.calibration import Calibration
 from ..model.errors import MargCalError
 from ..model.fitting import fit
 from .config import PipelineConfig, guard_rails
+from .partial import PartialCalibration
 from .status import Event, EventKind, State, pct
 
 __all__ = ["Evaluation"]
@@ -35,7 +36,7 @@ log = logging.getLogger("ros_margcal.stream.calibrator")  # one logger name for 
 Array = NDArray[np.float64]
 
 
-class Evaluation:
+class Evaluation(PartialCalibration):
     """Validation, fit and guard rails of a ``SensorCalibrator`` (a mixin: see the module docstring)."""
 
     # an evaluation on materially unchanged data is skipped (see _unchanged)
@@ -120,7 +121,7 @@ class Evaluation:
         data, so rich motion (new bins, a growing buffer) is evaluated at the usual cadence and motion
         that cannot change the verdict (a ground robot's yaw turns) ever more rarely.
         """
-        if self._last_full is None:
+        if self._last_full is None or self._partial_wanted():
             return False
         (objs0, (n0, cov0, ch0, chd0, res0)), (objs, (n, cov, ch, chd, res)) = self._last_full, self._signature()
         if any(x is not y for x, y in zip(objs, objs0, strict=True)) or (cov, ch, chd) != (cov0, ch0, chd0):
@@ -154,13 +155,12 @@ class Evaluation:
 
     def _evaluate(self, t: float, *, force: bool) -> list[Event]:
         """A due (``force``: a requested) evaluation: skipped on unchanged data, recorded when deferring."""
-        cfg = self.config
         self._since_eval = 0
         self._last_eval_t = t
         if force:
             self._pending = None
         else:
-            interval = cfg.recheck_interval_s if (self._cal is not None and not self._changed) else cfg.refit_min_interval_s
+            interval = self._cadence()[1]
             if self._unchanged(t, interval):
                 return []
             if self.defer_evaluation:
@@ -181,7 +181,8 @@ class Evaluation:
         if n < cfg.min_points:
             self._predicted = None
             self._last_reason = f"{n} samples buffered, need {cfg.min_points}"
-            return [Event(EventKind.REJECTED, t, self.sensor, f"not fitted: {self._last_reason}")] if force else [], None
+            events = [Event(EventKind.REJECTED, t, self.sensor, f"not fitted: {self._last_reason}")] if force else []
+            return events, (self._partial_job(self._fit_job(t)) if self._partial_wanted() else None)
         self._indicators = self._buffer.indicators()
         try:
             pred = float(self.validator.predict_indicators(self._indicators))
@@ -196,6 +197,8 @@ class Evaluation:
             events = [Event(EventKind.REJECTED, t, self.sensor, f"not fitted: {self._last_reason}")] if force else []
             if self._cal is None or self._changed:
                 events += self._set_state(State.COLLECTING, t)
+            if self._partial_wanted():  # what the motion makes observable (stream/observable.py)
+                return events, self._partial_job(self._fit_job(t))
             return events, None
         events = []
         if self._cal is None or self._changed:
@@ -218,12 +221,15 @@ class Evaluation:
     def _fit_job(self, t: float) -> dict[str, Any]:
         """A snapshot of what the fit needs (the fit itself may then run without the lock)."""
         return {"t": t, "points": self._buffer.points(), "recent": self._recent_points(), "current": self._cal,
-                "config": self.config, "buffer": self._buffer, "changes": self.changes}
+                "config": self.config, "buffer": self._buffer, "changes": self.changes,
+                "current_is_map": self._cal is not None and self._partial is not None}
 
     def _fit_compute(self, job: dict[str, Any]) -> tuple[Calibration | None, str]:
         """The fit and its guard rails on a snapshot: (calibration, "") or (None, the reason)."""
         cfg: PipelineConfig = job["config"]
         pts = job["points"]
+        if job.get("partial"):
+            return self._partial_compute(job)
         try:
             scale = None
             if cfg.f_scale_rel is not None:
@@ -232,9 +238,12 @@ class Evaluation:
             cal = fit(pts, model=cfg.model, method=cfg.method, norm=cfg.reference_norm, loss=cfg.loss,
                       f_scale=scale, init="lin_auto", max_iter=cfg.max_iter, sensor=self.sensor, unit=cfg.unit)
             cal = cal.replace(stamp=job["t"])
-            reason = guard_rails(cal, cfg, job["recent"], job["current"])
+            # a MAP calibration (partial or early) is no yardstick for the full fit: no not-worse check against it
+            reason = guard_rails(cal, cfg, job["recent"], None if job.get("current_is_map") else job["current"])
         except (ValueError, ArithmeticError) as exc:  # MargCalError is a ValueError, as is LinAlgError
             return None, f"fit failed: {exc}"
+        if not reason:
+            self._full_figures(job, cal)
         return (None, reason) if reason else (cal, "")
 
     def _fit_finish(self, job: dict[str, Any], result: tuple[Calibration | None, str]) -> list[Event]:
@@ -244,15 +253,20 @@ class Evaluation:
             log.debug("%s: fit from t=%.2f s dropped: reset, change or new calibration meanwhile", self.sensor, t)
             return []
         cal, reason = result
+        if cal is None and job.get("partial"):  # not good enough yet: keep collecting, say why
+            self._partial_note = reason
+            self._partial_close(job)
+            return []
         if cal is None:
             return self._reject(t, reason)
         self._install(cal)
+        note = self._partial_installed(job, cal)
         self._last_full = self._signature()
         self.fits_accepted += 1
         self._last_rejection = ""
         assert cal.stats is not None
-        msg = (f"calibrated from {len(job['points'])} samples: residual {pct(cal.stats.rms_relative)}, "
-               f"offset {np.array2string(cal.offset, precision=4)}")
+        msg = (f"calibrated from {len(job.get('series', job['points']))} samples: residual {pct(cal.stats.rms_relative)}, "
+               f"offset {np.array2string(cal.offset, precision=4)}{note}")
         log.info("%s: %s", self.sensor, msg)
         return [*self._set_state(State.CALIBRATED, t), Event(EventKind.CALIBRATED, t, self.sensor, msg, cal)]
 

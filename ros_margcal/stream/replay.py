@@ -41,7 +41,8 @@ def _samples(path: Path, sensor: str | None, unit: str | None) -> tuple[Iterator
 
 
 def replay(path: Path, *, sensor: str | None = None, unit: str | None = None, status_every: float = 10.0,
-           progress: bool = True, on_line: Any = None, validator: Any = None) -> dict[str, Any]:
+           progress: bool = True, on_line: Any = None, validator: Any = None,
+           options: dict[str, Any] | None = None) -> dict[str, Any]:
     """Run the pipeline over a recording; returns calibrators, timeline and counts.
 
     Args:
@@ -52,6 +53,7 @@ def replay(path: Path, *, sensor: str | None = None, unit: str | None = None, st
             logger's console handlers) are written above it, never into it.
         on_line: called with each timeline line (str) as it happens.
         validator: the validator every calibrator uses (None: the shipped default).
+        options: ``PipelineConfig`` options for every calibrator (e.g. ``{"partial_fit": False}``).
     """
     samples, units = _samples(path, sensor, unit)
     cals: dict[str, SensorCalibrator] = {}
@@ -70,7 +72,8 @@ def replay(path: Path, *, sensor: str | None = None, unit: str | None = None, st
         for t, s, xyz, gyro in bar:
             cal = cals.get(s)
             if cal is None:
-                cal = cals[s] = SensorCalibrator(s, PipelineConfig.for_sensor(s, units.get(s)), validator=validator)
+                cfg = PipelineConfig.for_sensor(s, units.get(s), **(options or {}))
+                cal = cals[s] = SensorCalibrator(s, cfg, validator=validator)
                 next_status[s] = t
             for ev in cal.push(t, xyz, gyro):
                 timeline.append(_event_entry(ev))

@@ -85,6 +85,12 @@ class Status:
     samples_passed: int = 0  # samples_seen == samples_passed + samples_rejected
     time_base_resets: int = 0
     gyro_ignored: int = 0
+    partial: bool = False  # the calibration is partial: some parameters come from the prior
+    updated_parameters: tuple[str, ...] = ()  # partial: the parameters the data determined
+    prior_parameters: tuple[str, ...] = ()  # partial: the parameters kept from the prior
+    heading_p95_level_deg: float | None = None  # magnetometer: predicted heading error p95, level, degrees
+    heading_p95_tilt30_deg: float | None = None  # ... with roll and pitch up to 30 deg
+    tilt_seen_deg: float | None = None  # partial: the tilt range of the data it was fitted on, degrees
 
     @property
     def name(self) -> str:
@@ -124,6 +130,12 @@ class Status:
             ("samples_passed", str(self.samples_passed)),
             ("time_base_resets", str(self.time_base_resets)),
             ("gyro_ignored", str(self.gyro_ignored)),
+            ("partial", str(self.partial).lower()),
+            ("updated_parameters", " ".join(self.updated_parameters)),
+            ("prior_parameters", " ".join(self.prior_parameters)),
+            ("heading_p95_level_deg", num(self.heading_p95_level_deg, "{:.3g}")),
+            ("heading_p95_tilt30_deg", num(self.heading_p95_tilt30_deg, "{:.3g}")),
+            ("tilt_seen_deg", num(self.tilt_seen_deg, "{:.3g}")),
         ]
         return out
 
@@ -140,7 +152,10 @@ class Status:
             "fits_accepted": self.fits_accepted, "fits_rejected": self.fits_rejected,
             "last_rejection": self.last_rejection, "changes_detected": self.changes_detected,
             "samples_passed": self.samples_passed, "time_base_resets": self.time_base_resets,
-            "gyro_ignored": self.gyro_ignored,
+            "gyro_ignored": self.gyro_ignored, "partial": self.partial,
+            "updated_parameters": list(self.updated_parameters), "prior_parameters": list(self.prior_parameters),
+            "heading_p95_level_deg": self.heading_p95_level_deg, "heading_p95_tilt30_deg": self.heading_p95_tilt30_deg,
+            "tilt_seen_deg": self.tilt_seen_deg,
         }
 
 

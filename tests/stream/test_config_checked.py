@@ -14,7 +14,7 @@ from ros_margcal.stream.config import FIELD_SPECS, PipelineConfig
 from ros_margcal.validation.shipped import FallbackValidator
 
 FIELDS = [f.name for f in dataclasses.fields(PipelineConfig)]
-NUMERIC = [n for n in FIELDS if FIELD_SPECS[n].kind is not str]
+NUMERIC = [n for n in FIELDS if FIELD_SPECS[n].kind not in (str, bool)]
 OPTIONAL = {n for n in FIELDS if FIELD_SPECS[n].none_ok}
 ABSURD: list[object] = [-1, 0, -1.0, 0.0, -1e300, 1e300, math.nan, math.inf, -math.inf, 10**400, -(10**400), 10**12,
                         1e-300, "1", "", "nan", None, True, False, [1.0], {"a": 1}, b"1", 1 + 2j]

@@ -22,7 +22,7 @@ import pytest
 
 import ros_margcal.stream.evaluation as calibrator_module
 from ros_margcal.sim import simulation as sim
-from ros_margcal.stream.calibrator import EventKind, SensorCalibrator
+from ros_margcal.stream.calibrator import EventKind, PipelineConfig, SensorCalibrator
 
 _SPEC = importlib.util.spec_from_file_location("margcal_independent_generator",
                                                Path(__file__).parents[1] / "independent" / "generator.py")
@@ -147,6 +147,10 @@ def test_run_pending_with_a_lock_and_a_stale_fit(tumble: sim.Recording) -> None:
     pytest.fail("no fit was attempted")
 
 
+FULL_ONLY = PipelineConfig.for_sensor("mag", partial_fit=False)
+"""The full path alone: the partial calibration (tests/stream/test_ground_robot.py) calibrates a ground robot."""
+
+
 def _ground_generator(seed: int) -> tuple[np.ndarray, np.ndarray]:
     rec = gen.generate("mag", "ground", duration_s=300.0, rate_hz=100.0, seed=seed)
     return rec["t"], rec["xyz"]
@@ -158,17 +162,18 @@ def _without_skipping(monkeypatch: pytest.MonkeyPatch) -> None:
 
 @pytest.mark.parametrize("seed", [1, 2])
 def test_ground_robot_validator_calls_are_bounded(seed: int, monkeypatch: pytest.MonkeyPatch) -> None:
-    """Yaw turns with a few degrees of tilt never calibrate; the validator is not asked again and again."""
+    """Yaw turns with a few degrees of tilt never calibrate (the full path alone: ``partial_fit`` off); the
+    validator is not asked again and again."""
     t, xyz = _ground_generator(seed)
     val = CountingValidator()
-    cal = SensorCalibrator("mag", validator=val)
+    cal = SensorCalibrator("mag", FULL_ONLY, validator=val)
     assert _feed(cal, t, xyz) == []
     per_10k = val.calls * 1e4 / len(t)
     assert per_10k <= 15.0, f"{val.calls} validator calls in {len(t)} samples"
     # the cadence alone (every refit_every samples and refit_min_interval_s) asks about once a second
     _without_skipping(monkeypatch)
     ref = CountingValidator()
-    assert _feed(SensorCalibrator("mag", validator=ref), t, xyz) == []
+    assert _feed(SensorCalibrator("mag", FULL_ONLY, validator=ref), t, xyz) == []
     assert ref.calls >= 5 * val.calls
 
 
@@ -180,7 +185,7 @@ def test_ground_robot_on_the_simulator() -> None:
     truth = sim.random_sensor(rng, "mag")
     rec = sim.magnetometer_stream(truth, 300.0, 100.0, rng, motion=ground_motion(300.0, 100.0, rng))
     val = CountingValidator()
-    assert _feed(SensorCalibrator("mag", validator=val), rec.t, rec.raw) == []
+    assert _feed(SensorCalibrator("mag", FULL_ONLY, validator=val), rec.t, rec.raw) == []
     assert val.calls * 1e4 / len(rec) <= 15.0
 
 

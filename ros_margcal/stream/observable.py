@@ -1,0 +1,231 @@
+"""Partial calibration: calibrate what the motion makes observable, and say how good it is elsewhere.
+
+A ground robot turns its magnetometer in yaw with a few degrees of roll and pitch: its samples fill
+a ring or a narrow band of the field sphere, the fuzzy validator (which judges a full 9-parameter
+fit) predicts an error of ~100 % and the plain fit is never run. This module is the other path.
+
+**Estimate.** ``fitting_prior.fit_with_prior``: a maximum a posteriori fit of the symmetric model with
+a prior. The prior is the last *full* calibration the calibrator accepted (or loaded), with its
+covariance inflated by ``prior_inflate`` so the data can move it; without one, the documented broad
+prior of ``fitting_prior.broad_prior`` (zero offset, identity matrix, offset std ``5`` field norms,
+matrix std ``0.1``). The data are a time series of the magnetometer decimated to one sample per
+``partial_period_s`` (the last ``partial_samples`` of them, 300 s at the defaults): the direction
+buffer keeps only ``per_bin`` samples per bin, ~170 on a ring, too few to average the noise; in time
+order, the fit's covariance allows for coloured noise. The field norm is ``reference_norm`` when
+configured, else the prior's, else the radius of a linear sphere fit to the series; the MAP fit holds it
+fixed, so an estimated norm adds its own uncertainty (``NORM_REL_STD``, 5 %) to the covariance: the
+difference of a fit at ``1.05`` times the norm (matrix rescaled) as one more error direction, which on a
+ring falls on the vertical offset. The information
+matrix tells which parameter directions the data determine: a parameter whose posterior variance fell
+below a quarter of its prior variance is *updated*, the others *come from the prior* (their value
+and uncertainty). A yaw-only robot thus gets its horizontal hard iron and 2-D soft iron from turning
+and keeps the vertical terms it had.
+
+**Decision.** The figure that matters is the heading error of what is used at the attitudes the robot
+has: ``model.heading.heading_p95`` from the posterior covariance, at the *tilt seen* (half the 2.5-97.5
+percentile spread of the calibrated field's elevation over the series: roll and pitch of ``±a`` move the
+elevation by up to ``±a``) and the field inclination seen (``heading.inclination_deg``, z axis up on
+average). A partial calibration is published when that figure is at most ``max_heading_p95_deg`` and the
+guard rails (``config.guard_rails`` without the parameter-uncertainty check, which the heading figure
+replaces: the prior-held parameters are uncertain by construction) pass, and the data are a ring or band
+(tilt seen at most ``partial_max_tilt_deg``, 45° by default: richer motion is the full path's) turned
+about the body z axis (the calibrated field visits at least ``partial_min_azimuth`` of 36 azimuth
+sectors, 90 % by default): the heading figures assume z up, and a cap about another axis (a sensor
+waved about one pose) would be judged at the wrong attitudes.
+
+**Early fit on rich motion** (``early_fit``). Before the first calibration, the same MAP fit on richer
+data (a tumble's first seconds, on the recent samples while the series is short) is
+published when its predicted heading p95 at ±30° tilt is at most ``early_heading_p95_deg`` (1°): the
+covariance says when the data suffice, instead of the validator's coverage rule and a fixed cadence.
+The full path then runs as before; its fits replace the early one without the not-worse check against
+it (``partial.PartialCalibration``), so the later calibrations are the full path's.
+A refit replaces a partial
+calibration when its predicted heading figure at the tilt seen is lower (instead of the not-worse check
+on the last few seconds' residual, which noise decides as often as the data). The level and ±30° figures go
+into the status, so a user sees that a calibration good when level is poor once the robot tilts past
+what it covered.
+
+**Accelerometer.** The same fit runs on the gate's still samples, only to say which parameters the
+poses seen determine (a level ground robot: the z offset and gain); it is never published, as no
+heading figure judges it.
+
+**Full calibrations.** ``heading_figures`` gives the same two figures for a calibration of the full
+path (``fitting.fit``): a MAP fit from the broad prior on the buffer at the fit's own norm supplies a
+covariance over the symmetric parameters (the published calibration is the full fit's, unchanged).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..model.calibration import Calibration
+from ..model.errors import MargCalError
+from ..model.fitting_core import parameter_names
+from ..model.fitting_prior import broad_prior, fit_with_prior
+from ..model.heading import heading_p95, inclination_deg
+from .config import PipelineConfig, guard_rails
+
+__all__ = ["DEFAULT_INCLINATION_DEG", "HeadingFigures", "PartialResult", "azimuth_coverage", "heading_figures", "partial_fit",
+           "sphere_radius", "tilt_seen_deg"]
+
+Array = NDArray[np.float64]
+
+SYM_NAMES = parameter_names("sym", scale_free=False)
+NORM_REL_STD = 0.05
+"""Relative std of a field norm estimated from partial data (the sphere through a band; 3-15 % off on
+the independent generator's ground robot at 60 s, within 5 % at 300 s)."""
+DEFAULT_INCLINATION_DEG = 60.0
+"""Field inclination assumed for the heading figures of a full calibration (mid latitudes) unless configured."""
+
+
+@dataclass(frozen=True)
+class HeadingFigures:
+    """Predicted heading error (p95, degrees) of a magnetometer calibration: level and at ±30° tilt."""
+
+    level_deg: float
+    tilt30_deg: float
+    inclination_deg: float
+
+
+@dataclass(frozen=True)
+class PartialResult:
+    """A partial (MAP) fit and its verdict.
+
+    Attributes:
+        calibration: the MAP estimate (posterior covariance attached), or None when the fit failed.
+        updated: parameters the data determined; from_prior: those kept from the prior.
+        prior_kind: ``"broad"`` (no previous calibration) or ``"previous"``.
+        tilt_seen_deg: the tilt range of the data; heading_seen_deg: the predicted heading p95 there.
+        figures: level and ±30° figures.
+        reason: why it must not be published ("" when it may).
+    """
+
+    calibration: Calibration | None
+    updated: tuple[str, ...]
+    from_prior: tuple[str, ...]
+    prior_kind: str
+    tilt_seen_deg: float
+    heading_seen_deg: float
+    figures: HeadingFigures | None
+    reason: str
+
+
+def sphere_radius(points: Array) -> float:
+    """Radius of the linear least-squares sphere through ``points`` (nan when degenerate)."""
+    a = np.c_[2.0 * points, np.ones(len(points))]
+    sol, *_ = np.linalg.lstsq(a, (points * points).sum(axis=1), rcond=None)
+    c = sol[:3]
+    r2 = float(sol[3] + c @ c)
+    return math.sqrt(r2) if math.isfinite(r2) and r2 > 0 else math.nan
+
+
+def tilt_seen_deg(cal: Calibration, raw: Array) -> float:
+    """Tilt range of the data (degrees): half the 2.5-97.5 percentile spread of the calibrated elevation."""
+    h = cal.apply(raw)
+    el = np.degrees(np.arcsin(np.clip(h[:, 2] / np.linalg.norm(h, axis=1), -1.0, 1.0)))
+    lo, hi = np.percentile(el, [2.5, 97.5])
+    return float(0.5 * (hi - lo))
+
+
+def azimuth_coverage(cal: Calibration, raw: Array, sectors: int = 36) -> float:
+    """Share of ``sectors`` azimuth sectors (about the body z axis) that the calibrated field visits."""
+    h = cal.apply(raw)
+    k = np.floor((np.arctan2(h[:, 1], h[:, 0]) + math.pi) / (2.0 * math.pi) * sectors).astype(int) % sectors
+    return len(np.unique(k)) / sectors
+
+
+def _with_norm_uncertainty(cal: Calibration, series: Array, prior: Calibration, inflate: float,
+                           stamp: float) -> Calibration:
+    """Add the uncertainty of a norm estimated from the data (``NORM_REL_STD``) to the covariance: the MAP
+    fit holds the norm fixed, and on a ring the vertical offset follows the norm it is given."""
+    n = prior.norm * (1.0 + NORM_REL_STD)
+    alt = fit_with_prior(series, prior.replace(norm=n), inflate=inflate, stamp=stamp, time_ordered=True).calibration
+    d = np.r_[alt.offset - cal.offset, [alt.matrix[i, j] * prior.norm / n - cal.matrix[i, j]
+                                        for i, j in ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))]]
+    assert cal.covariance is not None
+    return cal.replace(covariance=np.asarray(cal.covariance) + np.outer(d, d))
+
+
+def _inclination(cfg: PipelineConfig, cal: Calibration, raw: Array | None) -> float:
+    if cfg.heading_inclination_deg is not None:
+        return float(cfg.heading_inclination_deg)
+    return inclination_deg(cal, raw) if raw is not None else DEFAULT_INCLINATION_DEG
+
+
+def _figures(cal: Calibration, inc: float) -> HeadingFigures:
+    return HeadingFigures(heading_p95(cal, tilt_deg=0.0, inclination=inc),
+                          heading_p95(cal, tilt_deg=30.0, inclination=inc), inc)
+
+
+def heading_figures(cal: Calibration, points: Array, cfg: PipelineConfig) -> tuple[HeadingFigures, Calibration] | None:
+    """Level and ±30° heading figures of a full-path calibration, and the calibration with a covariance over
+    the symmetric parameters (module docstring); None when not computable."""
+    try:
+        cov_cal = cal
+        if cal.covariance is None or tuple(cal.parameter_names) != SYM_NAMES:
+            post = fit_with_prior(points, broad_prior(points, cal.norm)).calibration
+            cov_cal = cal.replace(covariance=post.covariance, parameter_names=SYM_NAMES)
+        return _figures(cov_cal, float(cfg.heading_inclination_deg or DEFAULT_INCLINATION_DEG)), cov_cal
+    except (MargCalError, ValueError, ArithmeticError):
+        return None
+
+
+def partial_fit(series: Array, prior: Calibration | None, cfg: PipelineConfig, *, recent: Array,
+                current: Calibration | None, stamp: float, sensor: str,
+                current_heading: float | None = None) -> PartialResult:
+    """The MAP fit of ``series`` (time-ordered raw samples) from ``prior`` and its verdict (module docstring)."""
+    kind = "previous" if prior is not None else "broad"
+    try:
+        if prior is not None and (prior.covariance is None or tuple(prior.parameter_names) != SYM_NAMES):
+            prior = None
+            kind = "broad"
+        norm = cfg.reference_norm or (prior.norm if prior is not None else sphere_radius(series))
+        if not (math.isfinite(norm) and norm > 0):
+            return PartialResult(None, (), SYM_NAMES, kind, math.nan, math.inf, None, "no field norm from the data")
+        if prior is None:
+            prior = broad_prior(series, norm, sensor=sensor, unit=cfg.unit)
+            inflate = 1.0
+        else:
+            inflate = cfg.prior_inflate
+        pf = fit_with_prior(series, prior, inflate=inflate, stamp=stamp, time_ordered=True)
+        cal = pf.calibration
+        if sensor == "mag" and not cfg.reference_norm and kind == "broad":
+            cal = _with_norm_uncertainty(cal, series, prior, inflate, stamp)
+        if sensor != "mag":
+            return PartialResult(cal, pf.updated, pf.from_prior, kind, math.nan, math.inf, None,
+                                 f"partial fit (not published for the {sensor}): the poses seen determine "
+                                 f"{', '.join(pf.updated) or 'no parameter'}; "
+                                 f"{', '.join(pf.from_prior) or 'none'} need more poses")
+        tilt = tilt_seen_deg(cal, series)
+        rich = not tilt <= cfg.partial_max_tilt_deg
+        inc = _inclination(cfg, cal, None if rich else series)  # "z up on average" holds for a ring, not a tumble
+        figs = _figures(cal, inc)
+        seen = figs.tilt30_deg if rich else heading_p95(cal, tilt_deg=tilt, inclination=inc)
+    except (MargCalError, ValueError, ArithmeticError) as exc:
+        return PartialResult(None, (), SYM_NAMES, kind, math.nan, math.inf, None, f"partial fit failed: {exc}")
+    limit = cfg.early_heading_p95_deg if rich else cfg.max_heading_p95_deg
+    reason = ""
+    if rich and not (cfg.early_fit and current is None):
+        reason = (f"partial fit: the data are tilted up to {tilt:.0f} deg > {cfg.partial_max_tilt_deg:g} deg, not a "
+                  "ring or band: the full path decides")
+    elif not rich and not azimuth_coverage(cal, series) >= cfg.partial_min_azimuth:
+        reason = (f"partial fit: the field turned through {100 * azimuth_coverage(cal, series):.0f} % of the azimuths "
+                  f"about the body z axis < {100 * cfg.partial_min_azimuth:.0f} %: not a ground robot's turns")
+    elif not seen <= limit:
+        where = "at 30 deg tilt" if rich else f"at the tilt seen ({tilt:.1f} deg)"
+        reason = f"partial fit: predicted heading error {seen:.2f} deg p95 {where} > {limit:g} deg"
+    elif current_heading is not None and not seen < current_heading:
+        reason = (f"partial refit: predicted heading error {seen:.2f} deg p95 not below the current "
+                  f"calibration's {current_heading:.2f} deg")
+    else:
+        # a partial refit replaces a partial calibration on its predicted heading (above), not on the
+        # residual of the last few seconds, which noise decides as often as the data
+        rails = guard_rails(cal.replace(covariance=None, parameter_names=()), cfg, recent,
+                            None if current_heading is not None else current)
+        if rails:
+            reason = f"partial fit: {rails}"
+    return PartialResult(cal, pf.updated, pf.from_prior, kind, tilt, seen, figs, reason)

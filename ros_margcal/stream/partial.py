@@ -1,0 +1,181 @@
+"""The calibrator's side of the partial calibration: its time series, its jobs, what the status shows.
+
+``PartialCalibration`` is a mixin of ``evaluation.Evaluation`` (and so of ``SensorCalibrator``); the
+estimate and the decision live in ``observable`` (see its docstring). Here:
+
+- the decimated time series of the samples that reach the buffer stage (the accelerometer's: the
+  gate's still means) (one sample per ``partial_period_s``, the last
+  ``partial_samples``), fed from the sample path;
+- the prior: the last *full* calibration accepted or loaded (with a covariance over the symmetric
+  parameters; a full fit gets one from ``observable.heading_figures``), else the broad prior;
+- the early fit on rich motion (``observable``): before the first calibration, on the recent samples
+  (``recent_samples``, all of them while uncalibrated) while the series is shorter than ``min_points``;
+- when a partial fit is due: the full validator refused, ``partial_fit`` is on, there is no
+  calibration, a sensor change is pending, or the current one is partial; and the series grew by a
+  quarter (``PARTIAL_GROWTH``) since the last attempt, which overrides the skip rule's back-off (a
+  ground robot's buffer stops changing, its series does not);
+- the status fields: ``partial``, ``updated_parameters``, ``prior_parameters``, the predicted heading
+  p95 level and at ±30° (also for a full magnetometer calibration), the tilt seen.
+
+The accelerometer's partial fit is never published (a heading figure does not judge it): its status
+says which parameters the poses seen determine and which need more poses (a level ground robot: the
+z terms only).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..model.calibration import Calibration
+from .config import PipelineConfig
+from .observable import SYM_NAMES, HeadingFigures, PartialResult, heading_figures, partial_fit
+
+__all__ = ["PartialCalibration"]
+
+Array = NDArray[np.float64]
+
+
+class PartialCalibration:
+    """Time series, prior and status of the partial calibration (a mixin: see the module docstring)."""
+
+    EARLY_CLOSE = 3.0
+    """Uncalibrated, with an early fit's predicted heading error within this factor of its limit, the
+    evaluation cadence is ``early_interval_s`` and half ``refit_every``: the stopping rule is the
+    covariance's, checked often while it is about to pass."""
+    PARTIAL_GROWTH = 0.25
+    """A new partial fit is due once the series received this share of its length in new samples."""
+    sensor: str
+    config: PipelineConfig
+    _cal: Calibration | None
+    _changed: bool
+    _recent_v: Any
+
+    def _partial_reset(self) -> None:
+        cfg = self.config
+        self._series: deque[tuple[float, float, float]] = deque(maxlen=cfg.partial_samples)
+        self._series_t = -math.inf
+        self._series_count = 0
+        self._series_at_attempt = -1
+        self._partial: PartialResult | None = None  # the last accepted partial fit (its status fields)
+        self._partial_note = ""  # why the last partial fit was not published
+        self._figures: HeadingFigures | None = None
+        self._prior: Calibration | None = None
+        self._early_close = False  # the last early fit's predicted heading error was within EARLY_CLOSE x its limit
+
+    def _cadence(self) -> tuple[int, float]:
+        """(samples, seconds) between evaluations: ``recheck_interval_s`` while calibrated by the full
+        path, else ``refit_min_interval_s`` (also under a MAP calibration, so the full path takes over as
+        soon as it would have), shortened while an early fit is close (``EARLY_CLOSE``). One microsecond
+        less, so stamps that went through sec/nanosec (the node) give the cadence of float stamps (replay)."""
+        cfg = self.config
+        if self._cal is not None and not self._changed and self._partial is None:
+            every, interval = cfg.refit_every, cfg.recheck_interval_s
+        elif self._cal is None and self._early_close and cfg.early_fit and cfg.partial_fit:
+            every, interval = max(1, cfg.refit_every // 2), min(cfg.refit_min_interval_s, cfg.early_interval_s)
+        else:
+            every, interval = cfg.refit_every, cfg.refit_min_interval_s
+        return every, max(0.0, interval - 1e-6)
+
+    def _partial_close(self, job: dict[str, Any]) -> None:
+        res: PartialResult | None = job.get("result")
+        cfg = self.config
+        limit = max(cfg.early_heading_p95_deg, cfg.max_heading_p95_deg)
+        self._early_close = res is not None and res.heading_seen_deg <= self.EARLY_CLOSE * limit
+
+    def _series_push(self, t: float, x: float, y: float, z: float) -> None:
+        if t - self._series_t < self.config.partial_period_s - 1e-6:  # 1 us: stamps through sec/nanosec
+            return
+        self._series_t = t
+        self._series.append((x, y, z))
+        self._series_count += 1
+
+    def _series_points(self) -> Array:
+        return np.array(self._series, dtype=np.float64).reshape(-1, 3)
+
+    def _partial_wanted(self) -> bool:
+        """The full validator refused: is a partial fit worth a try now (module docstring)?"""
+        cfg = self.config
+        early = cfg.early_fit and self._cal is None and len(self._recent_v) >= cfg.min_points
+        if not cfg.partial_fit or (len(self._series) < cfg.min_points and not early):
+            return False
+        if not (self._cal is None or self._changed or self._partial is not None):
+            return False
+        grown = self._series_count - self._series_at_attempt
+        return self._series_at_attempt < 0 or grown >= self.PARTIAL_GROWTH * len(self._series)
+
+    def _partial_job(self, job: dict[str, Any]) -> dict[str, Any]:
+        """Turn a fit job into a partial one (the series and the prior join the snapshot)."""
+        self._series_at_attempt = self._series_count
+        cur = self._partial if (self._cal is not None and not self._changed) else None
+        series = self._series_points()
+        if len(series) < self.config.min_points:  # early: the recent samples until the series is long enough
+            series = np.array(self._recent_v, dtype=np.float64).reshape(-1, 3)
+        return {**job, "partial": True, "series": series, "prior": self._prior,
+                "current_heading": None if cur is None else cur.heading_seen_deg}
+
+    def _partial_compute(self, job: dict[str, Any]) -> tuple[Calibration | None, str]:
+        res = partial_fit(job["series"], job["prior"], job["config"], recent=job["recent"], current=job["current"],
+                          stamp=job["t"], sensor=self.sensor, current_heading=job["current_heading"])
+        job["result"] = res
+        if res.reason or res.calibration is None:
+            return None, res.reason or "partial fit failed"
+        return res.calibration, ""
+
+    def _full_figures(self, job: dict[str, Any], cal: Calibration) -> None:
+        """A full magnetometer fit: its heading figures and its symmetric covariance (the next prior), off-lock."""
+        if self.sensor == "mag":
+            job["figures"] = heading_figures(cal, job["points"], job["config"])
+
+    def _partial_installed(self, job: dict[str, Any], cal: Calibration) -> str:
+        """Bookkeeping after ``job``'s calibration was installed; the words the CALIBRATED event adds."""
+        if job.get("partial"):
+            res: PartialResult = job["result"]
+            self._partial, self._partial_note = res, ""
+            self._figures = res.figures
+            return (f"; partial: updated {','.join(res.updated) or 'none'}, from the {res.prior_kind} prior "
+                    f"{','.join(res.from_prior) or 'none'}; heading p95 {res.heading_seen_deg:.2f} deg at the tilt seen "
+                    f"({res.tilt_seen_deg:.1f} deg)")
+        self._partial, self._partial_note = None, ""
+        got = job.get("figures")
+        if got is not None:
+            figs, cov_cal = got
+            self._figures = figs
+            self._prior = cov_cal
+        else:
+            self._figures = None
+        return ""
+
+    def _set_prior(self, cal: Calibration | None) -> None:
+        """A loaded calibration becomes the prior when it carries a covariance over the symmetric parameters."""
+        ok = cal is not None and cal.covariance is not None and tuple(cal.parameter_names) == SYM_NAMES
+        self._prior = cal if ok else None
+
+    def _partial_message(self) -> str:
+        """What the status message adds about the partial calibration and the heading figures."""
+        out = ""
+        p = self._partial
+        if p is not None and self._cal is not None:
+            out += f"; partial: updated {','.join(p.updated)}, from prior {','.join(p.from_prior) or 'none'}"
+        f = self._figures
+        if f is not None and self._cal is not None:
+            out += f"; heading p95 {f.level_deg:.2f} deg level, {f.tilt30_deg:.2f} deg at 30 deg tilt (predicted)"
+        if self._partial_note:
+            out += f"; {self._partial_note}"
+        return out
+
+    def _partial_fields(self) -> dict[str, Any]:
+        """The Status fields of the partial calibration and the heading figures."""
+        p, f, cal = self._partial, self._figures, self._cal
+        return {
+            "partial": p is not None and cal is not None and bool(p.from_prior),
+            "updated_parameters": tuple(p.updated) if (p is not None and cal is not None) else (),
+            "prior_parameters": tuple(p.from_prior) if (p is not None and cal is not None) else (),
+            "heading_p95_level_deg": None if (f is None or cal is None) else f.level_deg,
+            "heading_p95_tilt30_deg": None if (f is None or cal is None) else f.tilt30_deg,
+            "tilt_seen_deg": None if (p is None or cal is None) else p.tilt_seen_deg,
+        }
