@@ -47,7 +47,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("recording", nargs="?", type=Path, help="rosbag2 (.mcap/.db3 or folder) or CSV (t,x,y,z[,gx,gy,gz])")
     p.add_argument("--example", action="store_true", help="replay the example recording shipped with ros_margcal")
     p.add_argument("--sensor", choices=("mag", "accel"), help="CSV: which sensor the file holds (default: from the name)")
-    p.add_argument("--unit", help="CSV: raw unit (default T for mag, m/s^2 for accel)")
+    p.add_argument("--unit", help="CSV: raw unit: T, mT, uT, nT, gauss, mG (mag), m/s^2, g, mg (accel), or any other "
+                   "name such as counts (limits learnt from the first samples); default T for mag, m/s^2 for accel")
     p.add_argument("--truth", type=Path, help="calibration YAML with the true calibrations, to report the error")
     p.add_argument("--status-every", type=float, default=10.0, metavar="S",
                    help="status line every S seconds of recording time (default 10; 0 = events only)")

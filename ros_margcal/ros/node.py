@@ -86,6 +86,13 @@ _FLOAT_PARAMS: dict[str, tuple[float, float, str]] = {
     "change_min_duration_s": (0.0, 3600.0, "the change must persist this long before the buffer is rebuilt, s"),
     "outlier_threshold": (0.01, 10.0, "relative residual above which a sample is not buffered while calibrated"),
     "max_rate_hz": (1.0, 1.0e5, "samples closer than 1/max_rate_hz are a burst and dropped"),
+    "max_offset": (0.0, 1.0e3, "guard rail: absolute |offset| limit (tesla / m/s^2), besides max_offset_ratio; 0.0 = none"),
+    "max_heading_p95_deg": (0.01, 180.0, "partial calibration: largest predicted heading p95 at the tilt seen, deg"),
+    "early_heading_p95_deg": (0.01, 180.0, "early fit on rich motion: largest predicted heading p95 at 30 deg tilt, deg"),
+}
+_BOOL_PARAMS: dict[str, str] = {
+    "partial_fit": "fit what the motion makes observable (a ring or band) when the full validator refuses",
+    "early_fit": "publish a first MAP fit on rich motion once its predicted heading error is small",
 }
 _INT_PARAMS: dict[str, tuple[int, int, str]] = {
     "min_points": (4, 100000, "fewest buffered samples for a fit"),
@@ -101,6 +108,8 @@ _ACCEL_GATE: dict[str, tuple[float, float, str]] = {
     "gate_window_s": (0.1, 60.0, "inactivity gate window, s"),
     "gate_cv_threshold": (1e-5, 1.0, "inactivity gate: coefficient of variation limit"),
     "gate_gyro_threshold": (0.0, 10.0, "inactivity gate: angular rate limit, rad/s; 0.0 = off"),
+    "gate_gyro_window_s": (0.01, 60.0, "inactivity gate with a gyro reading: still window, s"),
+    "gate_gyro_rest_threshold": (1e-6, 10.0, "inactivity gate with a gyro reading: largest |omega| at rest, rad/s"),
 }
 
 
@@ -207,6 +216,8 @@ class MargCalNode(Node):
             self.declare_parameter(f"{s}.{name}", float(default or 0.0), _fdesc(lo, hi, text))
         for name, (lo, hi, text) in _INT_PARAMS.items():
             self.declare_parameter(f"{s}.{name}", int(getattr(base, name)), _idesc(lo, hi, text))
+        for name, text in _BOOL_PARAMS.items():
+            self.declare_parameter(f"{s}.{name}", bool(getattr(base, name)), ParameterDescriptor(description=text))
         for name, (lo, hi, text) in _READ_ONLY_INT.items():
             self.declare_parameter(f"{s}.{name}", int(getattr(base, name)), _idesc(lo, hi, text, read_only=True))
         if s == "accel":
@@ -217,12 +228,12 @@ class MargCalNode(Node):
     def _config_from(self, s: str, changed: dict[str, Any]) -> PipelineConfig:
         """The PipelineConfig of sensor ``s`` from the declared parameters, with ``changed`` applied."""
         base = PipelineConfig.for_sensor(s)
-        names = [*_FLOAT_PARAMS, *_INT_PARAMS, *_READ_ONLY_INT, *(_ACCEL_GATE if s == "accel" else ())]
+        names = [*_FLOAT_PARAMS, *_INT_PARAMS, *_BOOL_PARAMS, *_READ_ONLY_INT, *(_ACCEL_GATE if s == "accel" else ())]
         values: dict[str, Any] = {}
         for name in names:
             key = f"{s}.{name}"
             values[name] = changed[key] if key in changed else self.get_parameter(key).value
-        for name in ("max_predicted_error", "gate_gyro_threshold"):
+        for name in ("max_predicted_error", "gate_gyro_threshold", "max_offset"):
             if name in values and not values[name]:
                 values[name] = None  # 0.0 = off / the validator's own threshold
         return replace(base, **values).checked()
