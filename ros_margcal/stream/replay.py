@@ -15,6 +15,7 @@ from typing import Any
 from tqdm import tqdm
 from tqdm.contrib.logging import logging_redirect_tqdm
 
+from ..model.errors import RecordingError
 from ..recordings.bag import iter_bag_messages
 from ..recordings.read import read_recording
 from .calibrator import SensorCalibrator
@@ -54,6 +55,9 @@ def replay(path: Path, *, sensor: str | None = None, unit: str | None = None, st
         on_line: called with each timeline line (str) as it happens.
         validator: the validator every calibrator uses (None: the shipped default).
         options: ``PipelineConfig`` options for every calibrator (e.g. ``{"partial_fit": False}``).
+
+    Raises:
+        RecordingError: the recording cannot be read, or holds no sensor message at all.
     """
     samples, units = _samples(path, sensor, unit)
     cals: dict[str, SensorCalibrator] = {}
@@ -88,6 +92,9 @@ def replay(path: Path, *, sensor: str | None = None, unit: str | None = None, st
             n += 1
             if n % 1000 == 0:
                 bar.set_postfix_str(f"t = {t:.1f} s", refresh=False)
+    if n == 0:  # as the offline readers do: an empty recording is an error, not "final state after 0 messages"
+        msg = f"{path} holds no sensor_msgs/Imu or MagneticField messages (or CSV rows) to replay"
+        raise RecordingError(msg)
     return {"calibrators": cals, "timeline": timeline, "messages": n}
 
 

@@ -98,3 +98,14 @@ def test_csv_with_a_bom_is_read(tmp_path: Path) -> None:
     assert rec.sensor == "mag"
     np.testing.assert_array_equal(rec.t, [0.0, 0.5])
     np.testing.assert_array_equal(rec.raw, [[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]])
+
+
+def test_replay_of_a_bag_without_messages_fails_like_calibrate(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A bag whose topic holds no messages: replay exits 2 with one line, as calibrate does (it used to print
+    "final state after 0 messages" and exit 0)."""
+    empty = Recording(t=np.zeros(0), raw=np.zeros((0, 3)), sensor="mag", unit="T")
+    path = write_bag(tmp_path / "empty.mcap", {"imu/mag": empty})
+    assert main(["replay", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert "no sensor_msgs/Imu or MagneticField messages" in err and "Traceback" not in err
+    assert main(["calibrate", str(path), "--sensor", "mag"]) == 2
