@@ -145,7 +145,12 @@ def _select(jobs: list[tuple[str, str | None, float, str, int, float]], effects:
 
 def _confusion(rows: list[dict[str, Any]], out: Path) -> tuple[str, Path]:
     truth = [_label(r["sensor"], r["effect"], r["has_temp"]) for r in rows]
-    pred = [r["cause"] for r in rows]
+    return _confusion_plot(truth, [r["cause"] for r in rows], out, "confusion.png",
+                           "withheld effect (group; unobservable -> none)")
+
+
+def _confusion_plot(truth: list[str], pred: list[str], out: Path, name: str, ylabel: str) -> tuple[str, Path]:
+    """The confusion matrix of ``truth`` against ``pred`` as text and as ``out/name`` (PNG)."""
     labels = sorted(set(truth) | set(pred))
     mat = np.zeros((len(labels), len(labels)), dtype=int)
     for a, b in zip(truth, pred, strict=True):
@@ -164,8 +169,8 @@ def _confusion(rows: list[dict[str, Any]], out: Path) -> tuple[str, Path]:
             if mat[i, j]:
                 ax.text(j, i, str(mat[i, j]), ha="center", va="center", fontsize=8)
     ax.set_xlabel("diagnosed cause")
-    ax.set_ylabel("withheld effect (group; unobservable -> none)")
-    png = out / "confusion.png"
+    ax.set_ylabel(ylabel)
+    png = out / name
     png.write_bytes(figure_png(fig))
     return "\n".join(lines), png
 

@@ -18,6 +18,7 @@ from typing import Any
 
 from ..bench.diagnosis import main
 from ..diagnosis import diagnose, diagnose_holdout, rest_noise, summary, validator_downstream, write_report
+from ..diagnosis.twin import FIT_ERRORS
 from ..model.errors import ConfigError, MargCalError
 from ..recordings.read import read_recording
 from ..validation.shipped import load_default_validator
@@ -103,7 +104,7 @@ def _holdout(rec: Any, split: float, options: dict[str, Any]) -> dict[str, Any]:
 
     try:
         held = diagnose_holdout(rec, split=split, **options)
-    except MargCalError as exc:
+    except FIT_ERRORS as exc:
         return {"split": split, "error": str(exc)}
     return {"split": split, "effect": held["effect"], "magnitude": held["magnitude"],
             "cause_on_first_part": held["fit"].cause, "gap_before": held["gap_before"], "gap_after": held["gap_after"],

@@ -36,11 +36,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ..model.errors import ConfigError, MargCalError
+from ..model.errors import ConfigError, InputError
 from .downstream import N_SET, compare_validators
 from .ranking import EffectFit, applicable_effects, effective_group, equivalent_groups, gap_with, overall_gap, rank_effects
 from .stages import stage_gaps
-from .twin import DEFAULT_N_FIT, Baseline, Twin, build_twin, mean_features
+from .twin import DEFAULT_N_FIT, FIT_ERRORS, Baseline, Twin, build_twin, mean_features
 
 __all__ = ["NONE_GAP", "Diagnosis", "diagnose", "diagnose_holdout", "validator_downstream"]
 
@@ -87,6 +87,8 @@ class Diagnosis:
     downstream: dict[str, Any] = field(default_factory=dict)
     skipped: dict[str, str] = field(default_factory=dict)
     offset_change: dict[str, float] = field(default_factory=dict)
+    reason: str = ""
+    """Why the cause is ``unexplained`` without a ranking (the twin could not be built), else empty."""
 
     @property
     def best(self) -> EffectFit | None:
@@ -127,6 +129,7 @@ class Diagnosis:
             "downstream": self.downstream,
             "skipped": [{"stage": k, "reason": v} for k, v in self.skipped.items()],
             "offset_change": self.offset_change,
+            "reason": self.reason,
         }
 
 
@@ -195,9 +198,13 @@ def diagnose(
         validator: validator of the ``validator`` stage (None: the stage is skipped).
         progress: called as ``progress(done, total, effect_name)`` after each effect.
 
+    A recording that makes no usable twin (too short, static, nothing converges) is not refused: its
+    cause is ``unexplained`` and ``Diagnosis.reason`` says why. Stages that cannot be computed are
+    left out of the gaps (``stages.stage_gaps``) and effects that cannot be fitted out of the ranking.
+
     Raises:
         ConfigError: unknown sensor or bad option.
-        InputError, DegenerateDataError: unusable recording.
+        InputError: arrays of the wrong shape or with non-finite values (not a recording).
     """
     t0 = time.monotonic()
     t, raw, temp, label = _arrays(recording)
@@ -208,9 +215,15 @@ def diagnose(
     if n_seeds < 1 or n_spread < max(2, n_seeds):
         msg = f"need n_seeds >= 1 and n_spread >= max(2, n_seeds), got {n_seeds}, {n_spread}"
         raise ConfigError(msg)
-    twin = build_twin(t, raw, sensor=sensor, temp=temp, norm=norm, rest_noise_raw=rest_noise, n_fit=n_fit,
-                      validator=validator)
-    base = twin.spread(n_spread)
+    try:
+        twin = build_twin(t, raw, sensor=sensor, temp=temp, norm=norm, rest_noise_raw=rest_noise, n_fit=n_fit,
+                          validator=validator)
+        base = twin.spread(n_spread)
+    except InputError:
+        raise
+    except FIT_ERRORS as exc:  # a recording that makes no usable twin still gets a verdict, with the reason
+        log.info("no twin: %s", exc)
+        return _no_twin(sensor, len(t), str(exc), time.monotonic() - t0)
     seeds = base.seeds[:n_seeds]
     before = stage_gaps(twin.features_rec.values, base.mean, base.sd)  # against every seed of the spread
     gap_before = overall_gap(before)
@@ -226,7 +239,12 @@ def diagnose(
     best = fits[0] if fits else None
     top = max(before.values(), default=0.0)
     members: list[str]
-    if best is None or top < NONE_GAP or best.magnitude == 0.0 or (best.shrink < MIN_SHRINK and top < 2 * NONE_GAP):
+    reason = ""
+    if not before or (best is None and top >= NONE_GAP):
+        reason = "no stage of the recording could be compared with its twin" if not before else \
+            "no effect of the registry could be fitted to the recording"
+        cause, members, shrink, after, stages_after = "unexplained", [], 0.0, gap_before, dict(before)
+    elif best is None or top < NONE_GAP or best.magnitude == 0.0 or (best.shrink < MIN_SHRINK and top < 2 * NONE_GAP):
         cause, members, shrink, after, stages_after = "none", [], 0.0, gap_before, dict(before)
     elif best.shrink < MIN_SHRINK:
         cause, members, shrink, after, stages_after = "unexplained", [], best.shrink, best.gap_after, best.stages_after
@@ -239,8 +257,17 @@ def diagnose(
         stages_before=before, stages_after=stages_after, effects=fits, equivalent=equivalent_groups(observable, has_temp),
         unobservable=[e.name for e in hidden], null_gaps=_null_gaps(base), sensor=sensor, n_samples=len(t),
         n_fit=int(twin.sub.size), noise=twin.noise, seconds=time.monotonic() - t0, twin=twin, baseline=base,
-        skipped=dict(twin.skipped), offset_change=_change_dict(twin),
+        skipped=dict(twin.skipped), offset_change=_change_dict(twin), reason=reason,
     )
+
+
+def _no_twin(sensor: str, n: int, reason: str, seconds: float) -> Diagnosis:
+    """The verdict on a recording whose twin cannot be built: ``unexplained``, with the reason."""
+    observable, hidden = applicable_effects(sensor)
+    return Diagnosis(where="", cause="unexplained", cause_effects=[], shrink=0.0, gap_before=math.nan,
+                     gap_after=math.nan, stages_before={}, stages_after={}, effects=[],
+                     equivalent=equivalent_groups(observable), unobservable=[e.name for e in hidden], null_gaps=[],
+                     sensor=sensor, n_samples=n, n_fit=0, noise=math.nan, seconds=seconds, reason=reason)
 
 
 def diagnose_holdout(recording: Any, *, split: float = 0.5, **options: Any) -> dict[str, Any]:
@@ -310,7 +337,7 @@ def validator_downstream(diag: Diagnosis, validator: object | None, *, n_sets: i
         cmp = compare_validators(pts[pick], twin.best, validator, effects, span_s=span,
                                  recording=max(2, round(len(pts) / len(pick))), noise=noise, kind=kind,
                                  n_sets=n_sets, seed=seed)
-    except MargCalError as exc:
+    except FIT_ERRORS as exc:
         return {"available": False, "reason": f"validator downstream failed: {exc}"}
     v = cmp["validators"]
     out: dict[str, Any] = {"available": True, **cmp, "predicted_before": v["original"]["predicted"],

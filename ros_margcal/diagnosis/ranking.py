@@ -38,7 +38,7 @@ from numpy.typing import NDArray
 
 from ..sim.simulation import EFFECTS, Effect
 from .stages import stage_floor, stage_gaps
-from .twin import Baseline, Twin, mean_features
+from .twin import FIT_ERRORS, Baseline, Twin, mean_features
 
 __all__ = [
     "CLOSE_MARGIN", "DRIFT_GROUP", "EffectFit", "applicable_effects", "effective_group", "equivalent_groups",
@@ -222,7 +222,10 @@ def rank_effects(twin: Twin, base: Baseline, effects: list[Effect], *, seeds: tu
     """
     fits = []
     for i, e in enumerate(effects):
-        fits.append(fit_effect(twin, base, e, seeds=seeds))
+        try:
+            fits.append(fit_effect(twin, base, e, seeds=seeds))
+        except FIT_ERRORS as exc:  # one effect that cannot be simulated or fitted must not lose the ranking
+            log.info("effect %s left out of the ranking: %s", e.name, exc)
         if callable(progress):
             progress(i + 1, len(effects), e.name)
     fits.sort(key=lambda f: (-f.shrink, f.gap_after))

@@ -365,14 +365,15 @@ def stage_gaps(
 ) -> dict[str, float]:
     """Gap of each stage on the common z scale: RMS over its features of ``(rec - mean) / max(sd, floor)``.
 
-    Stages missing on either side are left out.
+    Stages missing on any side (the recording, the twins' mean or their spread: a stage that could not
+    be computed for one of them) are left out.
     """
     out: dict[str, float] = {}
     for name in STAGES:
-        if name not in rec or name not in twin_mean:
+        if name not in rec or name not in twin_mean or name not in twin_sd:
             continue
         a, m, s = rec[name], twin_mean[name], twin_sd[name]
-        if a.shape != m.shape:
+        if a.shape != m.shape or s.shape != m.shape:
             continue
         floor = stage_floor(name, a.shape)
         z = (a - m) / np.maximum(s, floor)

@@ -40,7 +40,7 @@ from .changes import OffsetChange, locate_offset_change, moving_mask
 from .stages import StageFeatures, rest_noise, stage_features
 
 __all__ = [
-    "MAX_STEP_DEG", "Baseline", "Twin", "build_twin", "mean_features", "median_step_deg", "smooth_directions",
+    "FIT_ERRORS", "MAX_STEP_DEG", "Baseline", "Twin", "build_twin", "mean_features", "median_step_deg", "smooth_directions",
     "subsample"
 ]
 
@@ -48,6 +48,8 @@ log = logging.getLogger(__name__)
 
 Array = NDArray[np.float64]
 
+FIT_ERRORS = (MargCalError, np.linalg.LinAlgError, ValueError, FloatingPointError, ZeroDivisionError)
+"""What a twin simulation or fit may raise on odd data; caught so that a diagnosis always gives a verdict."""
 DEFAULT_N_FIT = 6000
 """Samples the fitting stages use (evenly spaced in time); the read-out stages use every sample."""
 MIN_SAMPLES = 50
@@ -156,6 +158,8 @@ class Twin:
             and ``best`` are the fits of the side with more motion, the directions come from each
             side's own fit, and the stage features use the closed-form ``lin_auto`` fit in place of
             ``lm``, for the recording and the twin alike), else None.
+        closed_form: the stage features use the closed-form ``lin_auto`` fit (an offset change, or a
+            recording ``lm`` does not converge on: strong clipping or non-linearity), twin and recording alike.
     """
 
     t: Array
@@ -172,6 +176,7 @@ class Twin:
     features_rec: StageFeatures
     skipped: dict[str, str] = field(default_factory=dict)
     change: OffsetChange | None = None
+    closed_form: bool = False
     _cache: dict[tuple[tuple[tuple[str, float], ...], int], StageFeatures] = field(default_factory=dict, repr=False)
 
     def features(self, effects: dict[str, float] | None, seed: int) -> StageFeatures:
@@ -187,7 +192,7 @@ class Twin:
             msg = f"the simulator produced non-finite readings for effects {dict(key[0])}"
             raise InputError(msg)
         out = stage_features(self.t, raw, self.temp, self.sub, validator=self.validator, norm=self.norm,
-                             skip=frozenset(self.skipped), closed_form=self.change is not None)
+                             skip=frozenset(self.skipped), closed_form=self.closed_form)
         self._cache[key] = out
         return out
 
@@ -195,21 +200,37 @@ class Twin:
         """``features``, or None when the twin with these effects cannot be fitted (a strong effect)."""
         try:
             return self.features(effects, seed)
-        except MargCalError as exc:
+        except FIT_ERRORS as exc:
             log.debug("twin with %s, seed %d: %s", effects, seed, exc)
             return None
 
     def spread(self, n_seeds: int = 6) -> Baseline:
-        """The baseline twin over seeds ``0 .. n_seeds-1``."""
+        """The baseline twin over seeds ``0 .. n_seeds-1``.
+
+        When ``lm`` does not converge on a baseline twin (its features would be missing for one seed),
+        the recording and its twins are measured with the closed-form fit instead (``closed_form``).
+        """
         seeds = tuple(range(max(2, n_seeds)))
         try:
             feats = [self.features(None, s) for s in seeds]
         except MargCalError as exc:
-            msg = (f"the baseline twin cannot be fitted ({exc}); the recording's directions or noise level "
-                   f"(rest noise {self.noise:.3g} of the field radius) do not make a usable twin")
-            raise DegenerateDataError(msg) from exc
+            if self.closed_form:
+                raise DegenerateDataError(self._unusable(exc)) from exc
+            log.info("a baseline twin cannot be fitted by lm (%s): closed-form fits for recording and twins", exc)
+            self.closed_form = True
+            self._cache.clear()
+            try:
+                self.features_rec = stage_features(self.t, self.raw, self.temp, self.sub, validator=self.validator,
+                                                   norm=self.norm, skip=frozenset(self.skipped), closed_form=True)
+                feats = [self.features(None, s) for s in seeds]
+            except MargCalError as exc2:
+                raise DegenerateDataError(self._unusable(exc2)) from exc2
         mean, sd = mean_features(feats)
         return Baseline(seeds=seeds, features=feats, mean=mean, sd=sd)
+
+    def _unusable(self, exc: Exception) -> str:
+        return (f"the baseline twin cannot be fitted ({exc}); the recording's directions or noise level "
+                f"(rest noise {self.noise:.3g} of the field radius) do not make a usable twin")
 
 
 def _change_message(change: OffsetChange, exc: Exception) -> str:
@@ -240,6 +261,30 @@ def _side_fit(
     except MargCalError:
         sym = diag
     return sym, diag
+
+
+def _closed_form_fits(
+    pts: Array, sub: NDArray[np.intp], norm: float | None, sensor: str, exc: Exception,
+) -> tuple[Calibration, Calibration, Array]:
+    """Best and baseline fits by the closed-form ``lin_auto`` (it always gives an answer on a recording
+    that turns), used when ``lm`` does not converge and no offset change explains why (a strong
+    non-ellipsoidal effect: clipping, a cubic non-linearity); the calibrated vectors of every sample.
+
+    Raises:
+        DegenerateDataError: the closed form fails too (e.g. a static recording).
+    """
+    try:
+        truth = fit(pts[sub], model="diag", method="lin_auto", norm=norm, sensor=sensor)
+    except MargCalError as exc2:
+        msg = (f"the recording cannot be fitted ({exc}; closed form: {exc2}); a diagnosis needs a recording that "
+               "turns the sensor through many directions (a static recording only gives rest noise and quantisation)")
+        raise DegenerateDataError(msg) from exc2
+    try:
+        best = fit(pts[sub], model="sym", method="lin_auto", norm=norm)
+    except MargCalError:
+        best = truth
+    log.info("lm does not converge (%s) and no offset change explains it: closed-form fits", exc)
+    return best, truth, best.apply(pts)
 
 
 def _segment_fits(
@@ -325,32 +370,27 @@ def build_twin(
         raise InputError(msg)
     sub = subsample(n, n_fit)
     change: OffsetChange | None = None
-    searched = False  # whether locate_offset_change has run (it is searched once)
+    closed_form = False
     try:
         truth = fit(pts[sub], model="diag", method="lm", norm=norm, sensor=sensor, max_iter=_MAX_ITER)
         try:
             best = fit(pts[sub], model="sym", method="lm", norm=norm, max_iter=_MAX_ITER)
-        except MargCalError as exc_sym:
-            change, searched = locate_offset_change(times[sub], pts[sub]), True
-            if change is not None:
-                raise
-            # no offset step (e.g. a heavily clipped recording): the baseline fit gives the directions
+        except MargCalError as exc_sym:  # e.g. a heavily clipped recording: the baseline fit gives the directions
             log.info("the sym fit does not converge (%s): directions from the diag fit", exc_sym)
             best = truth
         h = best.apply(pts)
     except MargCalError as exc:
-        if not searched:
-            change = locate_offset_change(times[sub], pts[sub])
-        if change is None:
-            msg = (f"the recording cannot be fitted ({exc}); a diagnosis needs a recording that turns the sensor "
-                   "through many directions (a static recording only gives rest noise and quantisation)")
-            raise DegenerateDataError(msg) from exc
-        try:
-            best, truth, h = _segment_fits(times, pts, sub, change, norm, sensor)
-        except MargCalError as exc2:
-            raise DegenerateDataError(_change_message(change, exc)) from exc2
-        log.info("offset change at t = %.2f s (step %.3g of the field radius): the twin is the fit of one side",
-                 change.t, change.relative_step)
+        change = locate_offset_change(times[sub], pts[sub])
+        if change is not None:
+            try:
+                best, truth, h = _segment_fits(times, pts, sub, change, norm, sensor)
+            except MargCalError as exc2:
+                raise DegenerateDataError(_change_message(change, exc)) from exc2
+            log.info("offset change at t = %.2f s (step %.3g of the field radius): the twin is the fit of one side",
+                     change.t, change.relative_step)
+        else:
+            best, truth, h = _closed_form_fits(pts, sub, norm, sensor, exc)
+        closed_form = True
     step = median_step_deg(h)
     skipped: dict[str, str] = {}
     if np.ptp(times) <= 0:
@@ -368,11 +408,16 @@ def build_twin(
         dirs = smooth_directions(h, t=times)
     try:
         features_rec = stage_features(times, pts, tmp, sub, validator=validator, norm=norm, skip=frozenset(skipped),
-                                      closed_form=change is not None)
+                                      closed_form=closed_form)
     except MargCalError as exc:
-        msg = (f"the recording's stage features cannot be computed ({exc})"
-               + ("" if change is None else f"; {_change_message(change, exc)}"))
-        raise DegenerateDataError(msg) from exc
+        if closed_form:
+            msg = (f"the recording's stage features cannot be computed ({exc})"
+                   + ("" if change is None else f"; {_change_message(change, exc)}"))
+            raise DegenerateDataError(msg) from exc
+        log.info("the recording's stage features need the closed-form fit (%s)", exc)
+        closed_form = True
+        features_rec = stage_features(times, pts, tmp, sub, validator=validator, norm=norm, skip=frozenset(skipped),
+                                      closed_form=True)
     r_raw = truth.raw_radius
     if rest_noise_raw is None:
         if "rest_noise" in skipped:
@@ -390,4 +435,5 @@ def build_twin(
     for name, why in skipped.items():
         log.debug("stage %s skipped: %s", name, why)
     return Twin(t=times, raw=pts, temp=tmp, sub=sub, truth=truth, best=best, dirs=dirs, noise=noise, sensor=sensor,
-                norm=norm, validator=validator, features_rec=features_rec, skipped=skipped, change=change)
+                norm=norm, validator=validator, features_rec=features_rec, skipped=skipped, change=change,
+                closed_form=closed_form)
