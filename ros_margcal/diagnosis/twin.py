@@ -35,13 +35,14 @@ from scipy.signal import savgol_filter
 from ..model.calibration import Calibration
 from ..model.errors import DegenerateDataError, InputError, MargCalError, as_points
 from ..model.fitting import fit
+from ..sim.effects import check_effects, sensor_model
 from ..sim.simulation import simulate
 from .changes import OffsetChange, locate_offset_change, moving_mask
-from .stages import StageFeatures, rest_noise, stage_features
+from .stages import StageFeatures, rest_noise, sh_basis, stage_features
 
 __all__ = [
-    "FIT_ERRORS", "MAX_STEP_DEG", "Baseline", "Twin", "build_twin", "mean_features", "median_step_deg", "smooth_directions",
-    "subsample"
+    "FIT_ERRORS", "MAX_STEP_DEG", "Baseline", "Twin", "ar1_noise", "build_twin", "estimate_slow_noise", "mean_features",
+    "median_step_deg", "shaped_truth", "smooth_directions", "subsample"
 ]
 
 log = logging.getLogger(__name__)
@@ -59,6 +60,9 @@ MAX_STEP_DEG = 10.0
 """Median angle between consecutive samples above which a recording has no time continuity: its rest
 noise cannot be measured from second differences and its directions are not smoothed."""
 _MAX_ITER = 400
+_SLOW_MIN_SHARE = 0.04
+_SLOW_SH = 1  # harmonics removed before the slow noise is measured (1: the mean only)
+_SLOW_MAX_RATIO = 1.0
 _GUARD = 0.05
 """Share of the moving span left out on either side of an offset change when its sides are fitted."""
 
@@ -85,6 +89,90 @@ def smooth_directions(h: Array, window: int = SMOOTH_WINDOW, t: Array | None = N
             h[lo:hi] = savgol_filter(h[lo:hi], w, 2, axis=0, mode="interp")
     lengths = np.linalg.norm(h, axis=1, keepdims=True)
     return h / np.where(lengths > 0, lengths, 1.0)
+
+
+def ar1_noise(t: Array, std: float, tau: float, rng: np.random.Generator) -> Array:
+    """Gauss-Markov (AR(1)) noise (n, 3) of stationary ``std`` and correlation time ``tau`` at times ``t``."""
+    n = t.size
+    phi = np.exp(-np.diff(t, prepend=t[0]) / max(tau, 1e-9))
+    innov = rng.normal(size=(n, 3)) * (std * np.sqrt(1.0 - phi**2))[:, None]
+    innov[0] = rng.normal(size=3) * std
+    # x_k = phi_k x_{k-1} + e_k, solved by a cumulative product (phi_k > 0)
+    logp = np.cumsum(np.log(np.maximum(phi, 1e-300)))
+    scale = np.exp(logp - logp[-1])  # bounded by 1: no overflow
+    return np.asarray(np.cumsum(innov / scale[:, None], axis=0) * scale[:, None], dtype=np.float64)
+
+
+def estimate_slow_noise(t: Array, residual: Array, white: float, dirs: Array) -> tuple[float, float]:
+    """Slow (coloured) noise beyond the white noise, from the best fit's norm residual (fractions of the radius).
+
+    What the residual holds beyond its static direction pattern (harmonics to degree 4) is white noise
+    plus a slow part: its autocorrelation at short lags (1-5 samples of ``t``) is the slow part's share
+    ``a`` of the variance, its correlation time the one whose twin residual wanders as much (``_slow_time``). The slow
+    part counts when ``a`` exceeds ``_SLOW_MIN_SHARE`` (white noise alone: ~0.01), with a std of at most
+    ``_SLOW_MAX_RATIO`` times the white rest noise ``white`` (a larger slow part is an effect, a drift
+    or a temperature course, not noise). Real sensors and the independent test generator have such
+    noise; a twin with white noise only has too tight a residual spread for them.
+    """
+    if residual.size < 100 or not white > 0 or np.ptp(t) <= 0:
+        return 0.0, 1.0
+    basis = sh_basis(dirs)
+    left = residual - basis[:, :_SLOW_SH] @ np.linalg.lstsq(basis[:, :_SLOW_SH], residual, rcond=None)[0]
+    left = left - left.mean()
+    den = float(left @ left)
+    if den <= 0:
+        return 0.0, 1.0
+    acf = np.array([float(left[k:] @ left[:-k]) / den for k in range(1, 6)])
+    share = float(np.mean(acf))
+    if share <= _SLOW_MIN_SHARE:
+        return 0.0, 1.0
+    std = min(math.sqrt(share * den / left.size), _SLOW_MAX_RATIO * white)
+    return std, _slow_time(t, left, dirs, std, math.sqrt(max(den / left.size - std**2, 0.0)))
+
+
+def _slow_offset_rms(t: Array, r: Array, dirs: Array) -> float:
+    """RMS of what slowly modulated degree-1 terms (``cos(pi k tau) d``, k = 1, 2) explain of ``r`` beyond
+    the static ones: how much of a residual is an offset that wanders over the recording."""
+    tau = (t - t[0]) / max(float(np.ptp(t)), 1e-300)
+    static = np.column_stack([np.ones(t.size), dirs])
+    full = np.hstack([static] + [np.cos(math.pi * k * tau)[:, None] * dirs for k in (1, 2)])
+    f0 = static @ np.linalg.lstsq(static, r, rcond=None)[0]
+    f1 = full @ np.linalg.lstsq(full, r, rcond=None)[0]
+    return float(np.sqrt(np.mean((f1 - f0) ** 2)))
+
+
+def _slow_time(t: Array, left: Array, dirs: Array, std: float, white: float) -> float:
+    """Correlation time of the slow noise: the one (of a log-spaced grid) whose simulated residual along
+    the recording's directions has the recording's wandering offset (``_slow_offset_rms``, the
+    ``residual_time`` stage's first feature); the norm residual sees the noise only along the turning
+    direction, so its own autocorrelation mostly measures the turning."""
+    span = float(np.ptp(t))
+    target = _slow_offset_rms(t, left, dirs)
+    rng = np.random.default_rng(0)
+    best, best_err = 1.0, math.inf
+    for tau in np.geomspace(0.25, max(0.25 * span, 0.5), 9):
+        got = np.mean([_slow_offset_rms(t, np.einsum("ij,ij->i", dirs, ar1_noise(t, std, float(tau), rng))
+                                        + white * rng.normal(size=t.size), dirs) for _ in range(3)])
+        err = abs(math.log(max(float(got), 1e-300) / max(target, 1e-300)))
+        if err < best_err:
+            best, best_err = float(tau), err
+    return best
+
+
+def shaped_truth(diag: Calibration, best: Calibration, tolerance: float) -> Calibration:
+    """The twin's true sensor: the baseline ``diag`` fit, or with ``tolerance`` > 0 the best (``sym``)
+    fit whose cross-axis terms (off-diagonal entries of W relative to its diagonal) are clipped to
+    ``±tolerance``: a shape within the tolerance counts as the sensor's baseline and only its excess is
+    left as a gap (the ``ellipsoid_shape`` effects)."""
+    if tolerance <= 0 or best.model != "sym" or best is diag:
+        return diag
+    w = np.asarray(best.matrix, dtype=np.float64)
+    d = np.sqrt(np.abs(np.diag(w)))
+    c = w / np.outer(d, d)
+    off = ~np.eye(3, dtype=bool)
+    c[off] = np.clip(c[off], -tolerance, tolerance)
+    c = 0.5 * (c + c.T)
+    return best.replace(matrix=c * np.outer(d, d), model="sym")
 
 
 def median_step_deg(h: Array) -> float:
@@ -160,6 +248,10 @@ class Twin:
             ``lm``, for the recording and the twin alike), else None.
         closed_form: the stage features use the closed-form ``lin_auto`` fit (an offset change, or a
             recording ``lm`` does not converge on: strong clipping or non-linearity), twin and recording alike.
+        slow_noise: (std as a fraction of the field radius, correlation time in s) of the slow (AR(1),
+            Gauss-Markov) noise the twin adds to the white noise (``estimate_slow_noise``); std 0: none.
+        noise_measured: ``noise`` was measured on the recording (not given by the caller): a twin with
+            the ``quantization`` effect then takes the rounding's share out of it.
     """
 
     t: Array
@@ -177,6 +269,8 @@ class Twin:
     skipped: dict[str, str] = field(default_factory=dict)
     change: OffsetChange | None = None
     closed_form: bool = False
+    slow_noise: tuple[float, float] = (0.0, 1.0)
+    noise_measured: bool = False
     _cache: dict[tuple[tuple[tuple[str, float], ...], int], StageFeatures] = field(default_factory=dict, repr=False)
 
     def features(self, effects: dict[str, float] | None, seed: int) -> StageFeatures:
@@ -185,9 +279,19 @@ class Twin:
         hit = self._cache.get(key)
         if hit is not None:
             return hit
-        sim = simulate(self.truth, self.dirs, noise=self.noise, rng=np.random.default_rng(seed), t=self.t,
-                       effects=dict(key[0]), temperature=self.temp)
-        raw = sim.raw
+        rng = np.random.default_rng(seed)
+        noise = self.noise
+        lsb = dict(key[0]).get("quantization", 0.0)
+        if self.noise_measured and lsb > 0:  # the measured rest noise holds the rounding's own (LSB^2 / 12)
+            noise = math.sqrt(max(noise**2 - lsb**2 / 12.0, 0.1 * noise**2))
+        if self.slow_noise[0] > 0:  # an offset that wanders, before the read-out (quantisation, clipping)
+            slow = ar1_noise(self.t, self.slow_noise[0] * self.truth.raw_radius, self.slow_noise[1],
+                             np.random.default_rng([int(seed), 1001]))
+            raw = sensor_model(self.truth, self.dirs * self.truth.norm, self.t, rng, noise,
+                               check_effects(dict(key[0]), self.truth.sensor), self.temp, extra_offset=slow)[0]
+        else:
+            raw = simulate(self.truth, self.dirs, noise=noise, rng=rng, t=self.t, effects=dict(key[0]),
+                           temperature=self.temp).raw
         if not np.isfinite(raw).all():
             msg = f"the simulator produced non-finite readings for effects {dict(key[0])}"
             raise InputError(msg)
@@ -338,6 +442,7 @@ def build_twin(
     rest_noise_raw: float | None = None,
     n_fit: int = DEFAULT_N_FIT,
     validator: object | None = None,
+    shape_tolerance: float = 0.0,
 ) -> Twin:
     """Fit the recording and set up its twin.
 
@@ -350,6 +455,7 @@ def build_twin(
         rest_noise_raw: white noise std at rest in raw units (None: estimated from the recording).
         n_fit: samples for the fitting stages.
         validator: validator for the ``validator`` stage (None skips it).
+        shape_tolerance: cross-axis terms of the sensor's baseline (``shaped_truth``; 0: offset and gains only).
 
     Raises:
         InputError: bad shapes, non-finite values, a bad rest noise.
@@ -430,10 +536,20 @@ def build_twin(
             msg = f"rest noise must be a non-negative std in raw units, got {rest_noise_raw!r}"
             raise InputError(msg)
         noise = float(rest_noise_raw) / r_raw
+    if not (math.isfinite(shape_tolerance) and shape_tolerance >= 0):
+        msg = f"shape tolerance must be a non-negative fraction, got {shape_tolerance!r}"
+        raise InputError(msg)
+    if change is None:
+        truth = shaped_truth(truth, best, shape_tolerance)
+    slow = (0.0, 1.0)
+    if "rest_noise" not in skipped and best.stats is not None:
+        r_best = np.linalg.norm(best.apply(pts[sub]), axis=1) / best.norm - 1.0
+        white = rest_noise(pts) / r_raw  # measured, not the caller's: extra white noise is no slow noise
+        slow = estimate_slow_noise(times[sub], r_best, white, dirs[sub])
     truth = truth.replace(sensor=sensor, method="twin")
     log.debug("twin: %d samples (%d fitted), radius %.4g raw units, noise %.3g of it", n, sub.size, r_raw, noise)
     for name, why in skipped.items():
         log.debug("stage %s skipped: %s", name, why)
     return Twin(t=times, raw=pts, temp=tmp, sub=sub, truth=truth, best=best, dirs=dirs, noise=noise, sensor=sensor,
                 norm=norm, validator=validator, features_rec=features_rec, skipped=skipped, change=change,
-                closed_form=closed_form)
+                closed_form=closed_form, slow_noise=slow, noise_measured=rest_noise_raw is None)

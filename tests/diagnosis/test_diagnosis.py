@@ -168,15 +168,31 @@ def test_report_files(tmp_path: Path) -> None:
     [
         (np.full((200, 3), np.nan), InputError, "NaN"),
         (np.ones((200, 2)), InputError, "shape"),
-        (np.ones((10, 3)), DegenerateDataError, "at least"),
-        (np.tile([1.0, 2.0, 3.0], (500, 1)) + 1e-9 * np.arange(1500).reshape(500, 3), DegenerateDataError, "directions"),
     ],
 )
-def test_bad_input_raises_clear_errors(raw: np.ndarray, error: type[Exception], match: str) -> None:
-    """Corrupt or static input is refused with the package's error and a message that says why."""
+def test_malformed_arrays_raise_clear_errors(raw: np.ndarray, error: type[Exception], match: str) -> None:
+    """Arrays that are no recording (non-finite, wrong shape) are refused with the package's error."""
     rec = Recording(t=np.arange(len(raw)) * 0.01, raw=raw, sensor="mag")
     with pytest.raises(error, match=match):
         diagnose(rec, sensor="mag")
+
+
+@pytest.mark.parametrize(
+    ("raw", "match"),
+    [
+        (np.ones((10, 3)), "at least"),
+        (np.tile([1.0, 2.0, 3.0], (500, 1)) + 1e-9 * np.arange(1500).reshape(500, 3), "directions"),
+    ],
+)
+def test_unusable_recording_gets_an_unexplained_verdict(raw: np.ndarray, match: str, tmp_path: Path) -> None:
+    """A recording too short or too static for a twin is not refused: the cause is unexplained, the
+    reason says why, and the report is written."""
+    rec = Recording(t=np.arange(len(raw)) * 0.01, raw=raw, sensor="mag")
+    d = diagnose(rec, sensor="mag")
+    assert d.cause == "unexplained"
+    assert match in d.reason
+    jpath, _ = write_report(d, tmp_path)
+    assert json.loads(jpath.read_text())["reason"] == d.reason
 
 
 def test_unknown_sensor_is_a_config_error() -> None:
