@@ -6,7 +6,7 @@ observable effect of the registry (``ranking.rank_effects``) and decides:
 
 - ``where``: the stage with the largest gap;
 - ``cause``: ``"none"`` when the recording is within the baseline's spread (every stage gap below
-  ``NONE_GAP``), else the effect whose fitted magnitude removes the largest share of the gap (when an
+  ``NONE_GAP``, or a marginal gap that only a far-below-typical effect closes, ``MARGINAL_SIZE``), else the effect whose fitted magnitude removes the largest share of the gap (when an
   effect of another group comes within ``ranking.CLOSE_MARGIN`` of it, the one the recording is closer
   to on the features that separate the two, ``ranking.separate_close_calls``) — or
   its group's name when the group holds several applicable effects (``ellipsoid_shape``, and
@@ -37,6 +37,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..model.errors import ConfigError, InputError
+from ..sim.simulation import EFFECTS
 from .downstream import N_SET, compare_validators
 from .ranking import EffectFit, applicable_effects, effective_group, equivalent_groups, gap_with, overall_gap, rank_effects
 from .stages import stage_gaps
@@ -55,6 +56,10 @@ MIN_SHRINK = 0.3
 explains counts as the baseline's spread (``none``), a larger one is ``unexplained``."""
 
 
+MARGINAL_SIZE = 0.25
+"""A marginal gap (< 2 NONE_GAP) that only an effect below this share of its typical (default) magnitude
+closes counts as the baseline's spread (``none``): a twin's noise model (its slow noise above all) is
+itself uncertain by that much."""
 QUICK_N_FIT = 2000
 """Fitting samples of a ``quick`` diagnosis."""
 
@@ -242,7 +247,7 @@ def diagnose(
     gap_before = overall_gap(before)
     observable, hidden = applicable_effects(sensor)
     has_temp = twin.temp is not None and bool(np.ptp(twin.temp) > 0)
-    fits = rank_effects(twin, base, observable, seeds=seeds, progress=progress, refine_seeds=base.seeds)
+    fits = rank_effects(twin, base, observable, seeds=seeds, progress=progress, refine_seeds=base.seeds, quick=quick)
     if twin.change is not None:
         fits = _prefer_located_jump(fits)
     group_of = {e.name: effective_group(e, has_temp) for e in observable}
@@ -257,7 +262,8 @@ def diagnose(
         reason = "no stage of the recording could be compared with its twin" if not before else \
             "no effect of the registry could be fitted to the recording"
         cause, members, shrink, after, stages_after = "unexplained", [], 0.0, gap_before, dict(before)
-    elif best is None or top < NONE_GAP or best.magnitude == 0.0 or (best.shrink < MIN_SHRINK and top < 2 * NONE_GAP):
+    elif best is None or top < NONE_GAP or best.magnitude == 0.0 or (top < 2 * NONE_GAP and (
+            best.shrink < MIN_SHRINK or best.magnitude < MARGINAL_SIZE * EFFECTS[best.name].default_magnitude)):
         cause, members, shrink, after, stages_after = "none", [], 0.0, gap_before, dict(before)
     elif best.shrink < MIN_SHRINK:
         cause, members, shrink, after, stages_after = "unexplained", [], best.shrink, best.gap_after, best.stages_after

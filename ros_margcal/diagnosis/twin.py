@@ -61,6 +61,7 @@ MAX_STEP_DEG = 10.0
 noise cannot be measured from second differences and its directions are not smoothed."""
 _MAX_ITER = 400
 _SLOW_MIN_SHARE = 0.04
+_SLOW_TAU_SPREAD = 2.0
 _SLOW_SH = 1  # harmonics removed before the slow noise is measured (1: the mean only)
 _SLOW_MAX_RATIO = 1.0
 _GUARD = 0.05
@@ -285,7 +286,10 @@ class Twin:
         if self.noise_measured and lsb > 0:  # the measured rest noise holds the rounding's own (LSB^2 / 12)
             noise = math.sqrt(max(noise**2 - lsb**2 / 12.0, 0.1 * noise**2))
         if self.slow_noise[0] > 0:  # an offset that wanders, before the read-out (quantisation, clipping)
-            slow = ar1_noise(self.t, self.slow_noise[0] * self.truth.raw_radius, self.slow_noise[1],
+            # the correlation time is known only roughly: the seeds spread it over a factor of four, so the
+            # baseline's spread holds that uncertainty too
+            tau = self.slow_noise[1] * _SLOW_TAU_SPREAD ** ((int(seed) % 3) - 1)
+            slow = ar1_noise(self.t, self.slow_noise[0] * self.truth.raw_radius, tau,
                              np.random.default_rng([int(seed), 1001]))
             raw = sensor_model(self.truth, self.dirs * self.truth.norm, self.t, rng, noise,
                                check_effects(dict(key[0]), self.truth.sensor), self.temp, extra_offset=slow)[0]
