@@ -130,7 +130,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--motions", default="", help="only these motions, comma-separated")
     p.add_argument("--jobs", type=int, default=1, help="worker processes (the machine is shared: 1)")
     p.add_argument("--out", type=Path, default=Path("bench_out/independent"))
-    p.add_argument("--shape-tolerance", type=float, default=0.06,
+    p.add_argument("--shape-tolerance", type=float, default=0.05,
                    help="cross-axis terms that are the sensor's baseline (the generator's own soft iron: entries "
                         "up to 0.05); 0: the package simulator's baseline, offset and gains only")
     args = p.parse_args(argv)

@@ -79,9 +79,10 @@ def _case(job: tuple[str, str | None, float, str, int, float]) -> dict[str, Any]
             "has_temp": has_temp}
     try:
         d = diagnose(rec, sensor=sensor, rest_noise=rest)
-    except MargCalError as exc:  # counted as a miss, reported
-        return {**base, "cause": "error", "best": "", "shrink": 0.0, "gap_before": 0.0, "gap_after": 0.0,
-                "where": str(exc)[:60], "fitted": 0.0, "seconds": time.monotonic() - t0}
+    except Exception as exc:  # counted as a miss and as a traceback (a diagnosis must always give a verdict)
+        kind = "error" if isinstance(exc, MargCalError) else "traceback"
+        return {**base, "cause": kind, "best": "", "shrink": 0.0, "gap_before": 0.0, "gap_after": 0.0,
+                "where": f"{type(exc).__name__}: {exc}"[:80], "fitted": 0.0, "seconds": time.monotonic() - t0}
     return {**base, "cause": d.cause, "best": d.best.name if d.best else "", "shrink": d.shrink,
             "gap_before": d.gap_before, "gap_after": d.gap_after, "where": d.where,
             "fitted": d.best.magnitude if d.best else 0.0, "seconds": time.monotonic() - t0,
@@ -182,6 +183,7 @@ def _real(real_dir: Path, out: Path, quick: bool) -> list[dict[str, Any]]:
     for f in files:
         rec = read_recording(f)
         sensor = "accel" if "_acc" in f.name else "mag"
+        t0 = time.monotonic()
         try:
             h = diagnose_holdout(rec, split=0.5, sensor=sensor, n_fit=4000)
         except Exception as exc:  # report and go on: one odd file must not stop the benchmark
@@ -189,11 +191,12 @@ def _real(real_dir: Path, out: Path, quick: bool) -> list[dict[str, Any]]:
             continue
         rows.append({"file": f.name, "cause_first_half": h["fit"].cause, "effect": h["effect"], "magnitude": h["magnitude"],
                      "shrink_first_half": h["fit"].shrink, "gap_before_withheld": h["gap_before"],
-                     "gap_after_withheld": h["gap_after"], "shrink_withheld": h["shrink"]})
+                     "gap_after_withheld": h["gap_after"], "shrink_withheld": h["shrink"],
+                     "seconds": time.monotonic() - t0})
         r = rows[-1]
         print(f"  {f.name:50s} first half: {r['cause_first_half']:16s} ({r['effect']} {r['magnitude']:.3g}, "
               f"shrink {100 * r['shrink_first_half']:.0f} %)  withheld half: gap {r['gap_before_withheld']:.1f} -> "
-              f"{r['gap_after_withheld']:.1f} ({100 * r['shrink_withheld']:.0f} %)", flush=True)
+              f"{r['gap_after_withheld']:.1f} ({100 * r['shrink_withheld']:.0f} %), {r['seconds']:.0f} s", flush=True)
     if rows:
         plt = _plt()
         fig, ax = plt.subplots(figsize=(10, 3.5))
@@ -270,6 +273,8 @@ def main(argv: list[str] | None = None) -> int:
           f"({sum(strict)}/{len(strict)}), bias drift / temperature without a temperature column not merged")
     print(f"median shrink {100 * med_shrink:.1f} % over {len(observable)} observable-effect recordings  target >= 80 %")
     print(f"none on baseline-only {100 * none_rate:.1f} % ({len(none_rows)} recordings)  target >= 90 %")
+    failed = sum(r["cause"] in ("error", "traceback") for r in rows)
+    print(f"no verdict (an exception instead): {failed} of {len(rows)} recordings  target 0")
     print(f"median time per diagnosis {np.median([r['seconds'] for r in rows]):.1f} s "
           f"({len(jobs)} recordings of {jobs[0][5]:.0f} s at 50 Hz)")
     real = []

@@ -122,13 +122,15 @@ def _centre(g: Array, xy: Array) -> Array:
     return np.asarray(np.linalg.solve(np.eye(3) - m, q[5:8]), dtype=np.float64)
 
 
-def locate_offset_change(t: Array, raw: Array, *, noise: float | None = None) -> OffsetChange | None:
+def locate_offset_change(t: Array, raw: Array, *, noise: float | None = None, min_drop: float = MIN_DROP,
+                         min_shared_drop: float = MIN_SHARED_DROP) -> OffsetChange | None:
     """The offset change that best splits ``raw`` (n, 3) into two ellipsoids, or None when there is none.
 
     Args:
         t: times (n,), seconds, non-decreasing.
         raw: readings (n, 3) in time order (an evenly spaced subsample is fine).
         noise: white noise std in raw units for the still/moving decision (None: ``stages.rest_noise``).
+        min_drop, min_shared_drop: the evidence a split needs (0, 0: the best split whatever it removes).
     """
     times = np.asarray(t, dtype=np.float64).reshape(-1)
     v = np.asarray(raw, dtype=np.float64)
@@ -154,11 +156,11 @@ def locate_offset_change(t: Array, raw: Array, *, noise: float | None = None) ->
     drop = 1.0 - float(cost[j]) / total
     kj = int(k[j])
     log.debug("offset change: best split at t=%.3f s removes %.3f of the ellipsoid fit's RSS", tm[kj], drop)
-    if drop < MIN_DROP:
+    if drop < min_drop:
         return None
     shared = 1.0 - _shared_rss(x, y, kj) / total
     log.debug("offset change: one shape with two centres removes %.3f", shared)
-    if shared < MIN_SHARED_DROP:
+    if shared < min_shared_drop:
         return None
     before = centre + scale * _centre(g[kj - 1], xy[kj - 1])
     after = centre + scale * _centre(g[-1] - g[kj - 1], xy[-1] - xy[kj - 1])

@@ -6,7 +6,8 @@ observable effect of the registry (``ranking.rank_effects``) and decides:
 
 - ``where``: the stage with the largest gap;
 - ``cause``: ``"none"`` when the recording is within the baseline's spread (every stage gap below
-  ``NONE_GAP``, or a marginal gap that only a far-below-typical effect closes, ``MARGINAL_SIZE``), else the effect whose fitted magnitude removes the largest share of the gap (when an
+  ``NONE_GAP``, or a marginal gap that only a far-below-typical effect closes, ``MARGINAL_SIZE``),
+  else the effect whose fitted magnitude removes the largest share of the gap (when an
   effect of another group comes within ``ranking.CLOSE_MARGIN`` of it, the one the recording is closer
   to on the features that separate the two, ``ranking.separate_close_calls``) — or
   its group's name when the group holds several applicable effects (``ellipsoid_shape``, and

@@ -37,12 +37,13 @@ from ..model.errors import DegenerateDataError, InputError, MargCalError, as_poi
 from ..model.fitting import fit
 from ..sim.effects import check_effects, sensor_model
 from ..sim.simulation import simulate
+from .baseline_noise import ar1_noise, estimate_slow_noise, shaped_truth
 from .changes import OffsetChange, locate_offset_change, moving_mask
-from .stages import StageFeatures, rest_noise, sh_basis, stage_features
+from .stages import StageFeatures, rest_noise, stage_features
 
 __all__ = [
-    "FIT_ERRORS", "MAX_STEP_DEG", "Baseline", "Twin", "ar1_noise", "build_twin", "estimate_slow_noise", "mean_features",
-    "median_step_deg", "shaped_truth", "smooth_directions", "subsample"
+    "CHANGE_EVIDENCE", "FIT_ERRORS", "MAX_STEP_DEG", "Baseline", "Twin", "build_twin", "mean_features",
+    "median_step_deg", "smooth_directions", "subsample"
 ]
 
 log = logging.getLogger(__name__)
@@ -60,10 +61,10 @@ MAX_STEP_DEG = 10.0
 """Median angle between consecutive samples above which a recording has no time continuity: its rest
 noise cannot be measured from second differences and its directions are not smoothed."""
 _MAX_ITER = 400
-_SLOW_MIN_SHARE = 0.04
+CHANGE_EVIDENCE = 0.3
+"""Share of the single fit's residual an offset change must remove beyond what the best split removes on
+the no-change twin (``_change_survives_twin``)."""
 _SLOW_TAU_SPREAD = 2.0
-_SLOW_SH = 1  # harmonics removed before the slow noise is measured (1: the mean only)
-_SLOW_MAX_RATIO = 1.0
 _GUARD = 0.05
 """Share of the moving span left out on either side of an offset change when its sides are fitted."""
 
@@ -90,90 +91,6 @@ def smooth_directions(h: Array, window: int = SMOOTH_WINDOW, t: Array | None = N
             h[lo:hi] = savgol_filter(h[lo:hi], w, 2, axis=0, mode="interp")
     lengths = np.linalg.norm(h, axis=1, keepdims=True)
     return h / np.where(lengths > 0, lengths, 1.0)
-
-
-def ar1_noise(t: Array, std: float, tau: float, rng: np.random.Generator) -> Array:
-    """Gauss-Markov (AR(1)) noise (n, 3) of stationary ``std`` and correlation time ``tau`` at times ``t``."""
-    n = t.size
-    phi = np.exp(-np.diff(t, prepend=t[0]) / max(tau, 1e-9))
-    innov = rng.normal(size=(n, 3)) * (std * np.sqrt(1.0 - phi**2))[:, None]
-    innov[0] = rng.normal(size=3) * std
-    # x_k = phi_k x_{k-1} + e_k, solved by a cumulative product (phi_k > 0)
-    logp = np.cumsum(np.log(np.maximum(phi, 1e-300)))
-    scale = np.exp(logp - logp[-1])  # bounded by 1: no overflow
-    return np.asarray(np.cumsum(innov / scale[:, None], axis=0) * scale[:, None], dtype=np.float64)
-
-
-def estimate_slow_noise(t: Array, residual: Array, white: float, dirs: Array) -> tuple[float, float]:
-    """Slow (coloured) noise beyond the white noise, from the best fit's norm residual (fractions of the radius).
-
-    What the residual holds beyond its static direction pattern (harmonics to degree 4) is white noise
-    plus a slow part: its autocorrelation at short lags (1-5 samples of ``t``) is the slow part's share
-    ``a`` of the variance, its correlation time the one whose twin residual wanders as much (``_slow_time``). The slow
-    part counts when ``a`` exceeds ``_SLOW_MIN_SHARE`` (white noise alone: ~0.01), with a std of at most
-    ``_SLOW_MAX_RATIO`` times the white rest noise ``white`` (a larger slow part is an effect, a drift
-    or a temperature course, not noise). Real sensors and the independent test generator have such
-    noise; a twin with white noise only has too tight a residual spread for them.
-    """
-    if residual.size < 100 or not white > 0 or np.ptp(t) <= 0:
-        return 0.0, 1.0
-    basis = sh_basis(dirs)
-    left = residual - basis[:, :_SLOW_SH] @ np.linalg.lstsq(basis[:, :_SLOW_SH], residual, rcond=None)[0]
-    left = left - left.mean()
-    den = float(left @ left)
-    if den <= 0:
-        return 0.0, 1.0
-    acf = np.array([float(left[k:] @ left[:-k]) / den for k in range(1, 6)])
-    share = float(np.mean(acf))
-    if share <= _SLOW_MIN_SHARE:
-        return 0.0, 1.0
-    std = min(math.sqrt(share * den / left.size), _SLOW_MAX_RATIO * white)
-    return std, _slow_time(t, left, dirs, std, math.sqrt(max(den / left.size - std**2, 0.0)))
-
-
-def _slow_offset_rms(t: Array, r: Array, dirs: Array) -> float:
-    """RMS of what slowly modulated degree-1 terms (``cos(pi k tau) d``, k = 1, 2) explain of ``r`` beyond
-    the static ones: how much of a residual is an offset that wanders over the recording."""
-    tau = (t - t[0]) / max(float(np.ptp(t)), 1e-300)
-    static = np.column_stack([np.ones(t.size), dirs])
-    full = np.hstack([static] + [np.cos(math.pi * k * tau)[:, None] * dirs for k in (1, 2)])
-    f0 = static @ np.linalg.lstsq(static, r, rcond=None)[0]
-    f1 = full @ np.linalg.lstsq(full, r, rcond=None)[0]
-    return float(np.sqrt(np.mean((f1 - f0) ** 2)))
-
-
-def _slow_time(t: Array, left: Array, dirs: Array, std: float, white: float) -> float:
-    """Correlation time of the slow noise: the one (of a log-spaced grid) whose simulated residual along
-    the recording's directions has the recording's wandering offset (``_slow_offset_rms``, the
-    ``residual_time`` stage's first feature); the norm residual sees the noise only along the turning
-    direction, so its own autocorrelation mostly measures the turning."""
-    span = float(np.ptp(t))
-    target = _slow_offset_rms(t, left, dirs)
-    rng = np.random.default_rng(0)
-    best, best_err = 1.0, math.inf
-    for tau in np.geomspace(0.25, max(0.25 * span, 0.5), 9):
-        got = np.mean([_slow_offset_rms(t, np.einsum("ij,ij->i", dirs, ar1_noise(t, std, float(tau), rng))
-                                        + white * rng.normal(size=t.size), dirs) for _ in range(3)])
-        err = abs(math.log(max(float(got), 1e-300) / max(target, 1e-300)))
-        if err < best_err:
-            best, best_err = float(tau), err
-    return best
-
-
-def shaped_truth(diag: Calibration, best: Calibration, tolerance: float) -> Calibration:
-    """The twin's true sensor: the baseline ``diag`` fit, or with ``tolerance`` > 0 the best (``sym``)
-    fit whose cross-axis terms (off-diagonal entries of W relative to its diagonal) are clipped to
-    ``±tolerance``: a shape within the tolerance counts as the sensor's baseline and only its excess is
-    left as a gap (the ``ellipsoid_shape`` effects)."""
-    if tolerance <= 0 or best.model != "sym" or best is diag:
-        return diag
-    w = np.asarray(best.matrix, dtype=np.float64)
-    d = np.sqrt(np.abs(np.diag(w)))
-    c = w / np.outer(d, d)
-    off = ~np.eye(3, dtype=bool)
-    c[off] = np.clip(c[off], -tolerance, tolerance)
-    c = 0.5 * (c + c.T)
-    return best.replace(matrix=c * np.outer(d, d), model="sym")
 
 
 def median_step_deg(h: Array) -> float:
@@ -371,6 +288,27 @@ def _side_fit(
     return sym, diag
 
 
+def _change_survives_twin(
+    times: Array, pts: Array, sub: NDArray[np.intp], change: OffsetChange, norm: float | None, sensor: str,
+) -> bool:
+    """Whether a located offset change beats the no-change twin: the recording's one-shape-two-centres
+    drop must exceed, by ``CHANGE_EVIDENCE``, the best split's drop on a twin simulated from one
+    closed-form fit of the whole recording (same directions, times and rest noise, no change). A split
+    that noise, the turning or the slow noise alone can make fails the test."""
+    try:
+        cal = fit(pts[sub], model="diag", method="lin_auto", norm=norm, sensor=sensor)
+    except MargCalError:
+        return True  # no twin to test against: the shared-shape evidence stands
+    ts = times[sub]
+    dirs = smooth_directions(cal.apply(pts[sub]), t=ts)
+    noise = rest_noise(pts) / cal.raw_radius
+    raw0 = simulate(cal, dirs, noise=noise, rng=np.random.default_rng(0), t=ts).raw
+    null = locate_offset_change(ts, raw0, min_drop=0.0, min_shared_drop=0.0)
+    null_drop = null.shared_drop if null is not None else 0.0
+    log.debug("offset change: shared drop %.3f against the no-change twin's %.3f", change.shared_drop, null_drop)
+    return change.shared_drop > null_drop + CHANGE_EVIDENCE
+
+
 def _closed_form_fits(
     pts: Array, sub: NDArray[np.intp], norm: float | None, sensor: str, exc: Exception,
 ) -> tuple[Calibration, Calibration, Array]:
@@ -491,6 +429,8 @@ def build_twin(
         h = best.apply(pts)
     except MargCalError as exc:
         change = locate_offset_change(times[sub], pts[sub])
+        if change is not None and not _change_survives_twin(times, pts, sub, change, norm, sensor):
+            change = None
         if change is not None:
             try:
                 best, truth, h = _segment_fits(times, pts, sub, change, norm, sensor)
