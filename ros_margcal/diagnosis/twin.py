@@ -270,13 +270,18 @@ def _side_fit(
 ) -> tuple[Calibration, Calibration]:
     """Best (``sym``, else ``diag``) and baseline (``diag``) fits of the samples ``idx``; when ``lm``
     does not converge, those of the larger part around their own offset change (``depth`` more levels:
-    a magnet attached and removed again makes two changes)."""
+    a magnet attached and removed again makes two changes), else the closed-form ``lin_auto`` fits
+    (a side that covers only part of the sphere)."""
     try:
         diag = fit(pts[idx], model="diag", method="lm", norm=norm, sensor=sensor, max_iter=_MAX_ITER)
     except MargCalError:
         inner = locate_offset_change(times[idx], pts[idx]) if depth > 0 else None
         if inner is None:
-            raise
+            diag = fit(pts[idx], model="diag", method="lin_auto", norm=norm, sensor=sensor)
+            try:
+                return fit(pts[idx], model="sym", method="lin_auto", norm=norm), diag
+            except MargCalError:
+                return diag, diag
         ti = times[idx]
         span = float(np.ptp(ti))
         parts = [idx[ti < inner.t - _GUARD * span], idx[ti > inner.t + _GUARD * span]]
@@ -418,6 +423,7 @@ def build_twin(
         raise InputError(msg)
     sub = subsample(n, n_fit)
     change: OffsetChange | None = None
+    unfitted = ""  # an offset change whose sides cannot be fitted: reported, the twin fits the whole
     closed_form = False
     try:
         truth = fit(pts[sub], model="diag", method="lm", norm=norm, sensor=sensor, max_iter=_MAX_ITER)
@@ -434,15 +440,21 @@ def build_twin(
         if change is not None:
             try:
                 best, truth, h = _segment_fits(times, pts, sub, change, norm, sensor)
-            except MargCalError as exc2:
-                raise DegenerateDataError(_change_message(change, exc)) from exc2
-            log.info("offset change at t = %.2f s (step %.3g of the field radius): the twin is the fit of one side",
-                     change.t, change.relative_step)
+            except MargCalError as exc2:  # no side fits: one closed-form fit of the whole, the change reported
+                log.info("the sides of the offset change cannot be fitted (%s)", exc2)
+                best, truth, h = _closed_form_fits(pts, sub, norm, sensor, exc)
+                unfitted = _change_message(change, exc)
+                change = None
+            else:
+                log.info("offset change at t = %.2f s (step %.3g of the field radius): the twin is the fit of one "
+                         "side", change.t, change.relative_step)
         else:
             best, truth, h = _closed_form_fits(pts, sub, norm, sensor, exc)
         closed_form = True
     step = median_step_deg(h)
     skipped: dict[str, str] = {}
+    if unfitted:
+        skipped["offset_change"] = unfitted
     if np.ptp(times) <= 0:
         skipped["residual_time"] = "the recording has no time span (all timestamps equal)"
     if step > MAX_STEP_DEG:
