@@ -109,6 +109,38 @@ def case(job: tuple[str, str, float, str, int, float]) -> dict[str, Any]:
     return row
 
 
+def _busy() -> None:
+    while True:
+        pass
+
+
+def timing(quick: bool) -> dict[str, float]:
+    """Seconds of one diagnosis (validator stage included) of a 60 s, 50 Hz independent recording and of the
+    package's 5-minute, 100 Hz speed recording, with one core kept busy by a spinning process meanwhile."""
+    from ros_margcal.bench.diagnosis import speed_recording  # the package benchmark's own speed case
+
+    hog = multiprocessing.get_context("fork").Process(target=_busy, daemon=True)
+    hog.start()
+    try:
+        out = {}
+        rec = GEN.generate("mag", "tumble", 60.0, 50.0, 7, effect="none")
+        with tempfile.TemporaryDirectory() as tmp:
+            path = Path(tmp) / "case.csv"
+            GEN.write_csv(path, rec)
+            t0 = time.monotonic()
+            diagnose(read_recording(path, sensor="mag"), sensor="mag", norm=float(rec["truth"]["norm"]),
+                     validator=load_default_validator(), quick=quick)
+            out["independent_60s_50Hz"] = time.monotonic() - t0
+        long = speed_recording()
+        t0 = time.monotonic()
+        diagnose(long, sensor="mag", validator=load_default_validator(), quick=quick)
+        out["package_5min_100Hz"] = time.monotonic() - t0
+    finally:
+        hog.terminate()
+        hog.join()
+    return out
+
+
 def _summary(rows: list[dict[str, Any]], name: str) -> str:
     if not rows:
         return f"{name}: no cases"
@@ -133,7 +165,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--shape-tolerance", type=float, default=0.05,
                    help="cross-axis terms that are the sensor's baseline (the generator's own soft iron: entries "
                         "up to 0.05); 0: the package simulator's baseline, offset and gains only")
+    p.add_argument("--timing", action="store_true",
+                   help="only time one 60 s / 50 Hz and one 5 min / 100 Hz diagnosis with the other core kept busy")
+    p.add_argument("--quick", action="store_true", help="with --timing: time margcal diagnose --quick")
     args = p.parse_args(argv)
+    if args.timing:
+        for name, secs in timing(args.quick).items():
+            print(f"{name}: {secs:.1f} s{' (--quick)' if args.quick else ''}, one other core kept busy")
+        return 0
     global SHAPE_TOLERANCE  # read by the worker processes (forked after this)
     SHAPE_TOLERANCE = args.shape_tolerance
     args.out.mkdir(parents=True, exist_ok=True)

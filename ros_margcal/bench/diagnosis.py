@@ -45,7 +45,7 @@ from ..recordings.read import read_recording
 from ..sim.simulation import EFFECTS, magnetometer_stream, random_sensor, tumbling
 from ..validation.shipped import load_default_validator
 
-__all__ = ["main"]
+__all__ = ["main", "speed_recording"]
 
 _REAL = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "real"
 _REAL_FILES = ("sunsided_hmc5883l_full_sphere_mag.csv", "ck_lsm9ds1_full_sphere_mag.csv", "hamagure_lsm9ds1_full_sphere_mag.csv",
@@ -211,11 +211,16 @@ def _real(real_dir: Path, out: Path, quick: bool) -> list[dict[str, Any]]:
     return rows
 
 
-def _speed() -> float:
-
+def speed_recording() -> Any:
+    """The speed case: a simulated 5-minute, 100 Hz magnetometer recording (30000 samples) with soft iron."""
     rng = np.random.default_rng(5)
     truth = random_sensor(rng, "mag", model="diag")
-    rec = magnetometer_stream(truth, 300.0, 100.0, rng, noise=0.005, effects={"soft_iron": 0.05})
+    return magnetometer_stream(truth, 300.0, 100.0, rng, noise=0.005, effects={"soft_iron": 0.05})
+
+
+def _speed() -> float:
+
+    rec = speed_recording()
     t0 = time.monotonic()
     diagnose(rec, sensor="mag", validator=load_default_validator())
     return time.monotonic() - t0

@@ -293,6 +293,17 @@ def _side_fit(
     return sym, diag
 
 
+def _located_change(
+    times: Array, pts: Array, sub: NDArray[np.intp], norm: float | None, sensor: str,
+) -> OffsetChange | None:
+    """The offset change of the subsample ``sub`` when one is located and beats the no-change twin."""
+    change = locate_offset_change(times[sub], pts[sub])
+    if change is not None and not _change_survives_twin(times, pts, sub, change, norm, sensor):
+        log.info("offset change at t = %.2f s rejected: the no-change twin splits as well", change.t)
+        return None
+    return change
+
+
 def _change_survives_twin(
     times: Array, pts: Array, sub: NDArray[np.intp], change: OffsetChange, norm: float | None, sensor: str,
 ) -> bool:
@@ -425,18 +436,22 @@ def build_twin(
     change: OffsetChange | None = None
     unfitted = ""  # an offset change whose sides cannot be fitted: reported, the twin fits the whole
     closed_form = False
+    searched = False  # whether the offset change has been searched (it is searched once)
     try:
         truth = fit(pts[sub], model="diag", method="lm", norm=norm, sensor=sensor, max_iter=_MAX_ITER)
         try:
             best = fit(pts[sub], model="sym", method="lm", norm=norm, max_iter=_MAX_ITER)
-        except MargCalError as exc_sym:  # e.g. a heavily clipped recording: the baseline fit gives the directions
+        except MargCalError as exc_sym:
+            change, searched = _located_change(times, pts, sub, norm, sensor), True
+            if change is not None:
+                raise
+            # no offset step (e.g. a heavily clipped recording): the baseline fit gives the directions
             log.info("the sym fit does not converge (%s): directions from the diag fit", exc_sym)
             best = truth
         h = best.apply(pts)
     except MargCalError as exc:
-        change = locate_offset_change(times[sub], pts[sub])
-        if change is not None and not _change_survives_twin(times, pts, sub, change, norm, sensor):
-            change = None
+        if not searched:
+            change = _located_change(times, pts, sub, norm, sensor)
         if change is not None:
             try:
                 best, truth, h = _segment_fits(times, pts, sub, change, norm, sensor)
