@@ -57,7 +57,7 @@ MIN_SHRINK = 0.3
 explains counts as the baseline's spread (``none``), a larger one is ``unexplained``."""
 
 
-MARGINAL_SIZE = 0.25
+MARGINAL_SIZE = 0.4
 """A marginal gap (< 2 NONE_GAP) that only an effect below this share of its typical (default) magnitude
 closes counts as the baseline's spread (``none``): a twin's noise model (its slow noise above all) is
 itself uncertain by that much."""
