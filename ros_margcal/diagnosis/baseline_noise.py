@@ -45,9 +45,9 @@ def estimate_slow_noise(t: Array, residual: Array, white: float, dirs: Array) ->
     What the residual holds beyond its static direction pattern (harmonics to degree 4) is white noise
     plus a slow part: its autocorrelation at short lags (1-5 samples of ``t``) is the slow part's share
     ``a`` of the variance, its correlation time the one whose twin residual wanders as much (``_slow_time``). The slow
-    part counts when ``a`` exceeds ``_SLOW_MIN_SHARE`` (white noise alone: ~0.01) and its std is at most
+    part counts when ``a`` exceeds ``_SLOW_MIN_SHARE`` (white noise alone: ~0.01), with a std of at most
     ``_SLOW_MAX_RATIO`` times the white rest noise ``white`` (a larger slow part is an effect, a drift
-    or a temperature course, not noise: the twin then gets none). Real sensors and the independent test generator have such
+    or a temperature course, not noise). Real sensors and the independent test generator have such
     noise; a twin with white noise only has too tight a residual spread for them.
     """
     if residual.size < 100 or not white > 0 or np.ptp(t) <= 0:
@@ -62,9 +62,7 @@ def estimate_slow_noise(t: Array, residual: Array, white: float, dirs: Array) ->
     share = float(np.mean(acf))
     if share <= _SLOW_MIN_SHARE:
         return 0.0, 1.0
-    std = math.sqrt(share * den / left.size)
-    if std > _SLOW_MAX_RATIO * white:  # a slow part larger than the white noise is an effect (a drift), not noise
-        return 0.0, 1.0
+    std = min(math.sqrt(share * den / left.size), _SLOW_MAX_RATIO * white)
     return std, _slow_time(t, left, dirs, std, math.sqrt(max(den / left.size - std**2, 0.0)))
 
 

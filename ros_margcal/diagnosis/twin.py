@@ -410,7 +410,8 @@ def build_twin(
         sensor: "mag" or "accel" (restricts the effects that apply).
         temp: temperature (n,), °C, or None.
         norm: reference norm of the calibrated vector (None: estimated).
-        rest_noise_raw: white noise std at rest in raw units (None: estimated from the recording).
+        rest_noise_raw: white noise std at rest in raw units (None: estimated from the recording, with its
+            slow part, ``baseline_noise.estimate_slow_noise``; given: the whole noise model, white).
         n_fit: samples for the fitting stages.
         validator: validator for the ``validator`` stage (None skips it).
         shape_tolerance: cross-axis terms of the sensor's baseline (``shaped_truth``; 0: offset and gains only).
@@ -513,7 +514,8 @@ def build_twin(
     if change is None:
         truth = shaped_truth(truth, best, shape_tolerance)
     slow = (0.0, 1.0)
-    if "rest_noise" not in skipped and best.stats is not None:
+    if rest_noise_raw is None and "rest_noise" not in skipped and best.stats is not None:
+        # a rest noise the caller measured (a static recording) is the sensor's whole noise model
         r_best = np.linalg.norm(best.apply(pts[sub]), axis=1) / best.norm - 1.0
         white = rest_noise(pts) / r_raw  # measured, not the caller's: extra white noise is no slow noise
         slow = estimate_slow_noise(times[sub], r_best, white, dirs[sub])
