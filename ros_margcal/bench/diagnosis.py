@@ -47,7 +47,7 @@ from ..validation.shipped import load_default_validator
 
 __all__ = ["main", "speed_recording"]
 
-_REAL = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "real"
+_REAL = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "real"  # ../shared beside the checkout
 _REAL_FILES = ("sunsided_hmc5883l_full_sphere_mag.csv", "ck_lsm9ds1_full_sphere_mag.csv", "hamagure_lsm9ds1_full_sphere_mag.csv",
                "broad_02_undisturbed_slow_rotation_B_mag.csv", "broad_32_disturbed_attached_magnet_1cm_mag.csv",
                "sunsided_mpu6050_full_sphere_acc.csv", "ck_lsm9ds1_static_poses_acc.csv")
