@@ -14,6 +14,7 @@ import math
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.signal import lfilter
 
 from ..model.calibration import Calibration
 from .stages import sh_basis
@@ -28,15 +29,15 @@ _SLOW_MAX_RATIO = 1.0
 
 
 def ar1_noise(t: Array, std: float, tau: float, rng: np.random.Generator) -> Array:
-    """Gauss-Markov (AR(1)) noise (n, 3) of stationary ``std`` and correlation time ``tau`` at times ``t``."""
+    """Gauss-Markov (AR(1)) noise (n, 3) of stationary ``std`` and correlation time ``tau`` at times ``t``
+    (the step of the median sample interval: a recording with gaps keeps its correlation per sample)."""
     n = t.size
-    phi = np.exp(-np.diff(t, prepend=t[0]) / max(tau, 1e-9))
-    innov = rng.normal(size=(n, 3)) * (std * np.sqrt(1.0 - phi**2))[:, None]
-    innov[0] = rng.normal(size=3) * std
-    # x_k = phi_k x_{k-1} + e_k, solved by a cumulative product (phi_k > 0)
-    logp = np.cumsum(np.log(np.maximum(phi, 1e-300)))
-    scale = np.exp(logp - logp[-1])  # bounded by 1: no overflow
-    return np.asarray(np.cumsum(innov / scale[:, None], axis=0) * scale[:, None], dtype=np.float64)
+    dt = float(np.median(np.diff(t))) if n > 1 else 1.0
+    phi = math.exp(-max(dt, 0.0) / max(tau, 1e-9))
+    innov = rng.normal(size=(n, 3)) * (std * math.sqrt(max(1.0 - phi * phi, 0.0)))
+    if n:
+        innov[0] = rng.normal(size=3) * std
+    return np.asarray(lfilter([1.0], [1.0, -phi], innov, axis=0), dtype=np.float64)
 
 
 def estimate_slow_noise(t: Array, residual: Array, white: float, dirs: Array) -> tuple[float, float]:
