@@ -96,11 +96,13 @@ def _slow_time(t: Array, left: Array, dirs: Array, std: float, white: float) -> 
     return best
 
 
-def shaped_truth(diag: Calibration, best: Calibration, tolerance: float) -> Calibration:
+def shaped_truth(diag: Calibration, best: Calibration, tolerance: float, *, cross_only: bool = False) -> Calibration:
     """The twin's true sensor: the baseline ``diag`` fit, or with ``tolerance`` > 0 the best (``sym``)
     fit whose cross-axis terms (off-diagonal entries of W relative to its diagonal) are clipped to
     ``±tolerance``: a shape within the tolerance counts as the sensor's baseline and only its excess is
-    left as a gap (the ``ellipsoid_shape`` effects)."""
+    left as a gap (the ``ellipsoid_shape`` effects). With ``cross_only`` only those cross terms are taken
+    from ``best``, onto the offset and gains of ``diag`` (a ``best`` fitted on part of the sphere, whose
+    scale along the unseen directions is not to be trusted)."""
     if tolerance <= 0 or best.model != "sym" or best is diag:
         return diag
     w = np.asarray(best.matrix, dtype=np.float64)
@@ -109,4 +111,7 @@ def shaped_truth(diag: Calibration, best: Calibration, tolerance: float) -> Cali
     off = ~np.eye(3, dtype=bool)
     c[off] = np.clip(c[off], -tolerance, tolerance)
     c = 0.5 * (c + c.T)
+    if cross_only:
+        d = np.sqrt(np.abs(np.diag(np.asarray(diag.matrix, dtype=np.float64))))
+        return diag.replace(matrix=c * np.outer(d, d), model="sym")
     return best.replace(matrix=c * np.outer(d, d), model="sym")

@@ -61,6 +61,7 @@ MAX_STEP_DEG = 10.0
 """Median angle between consecutive samples above which a recording has no time continuity: its rest
 noise cannot be measured from second differences and its directions are not smoothed."""
 _MAX_ITER = 400
+_SHAPE_ITER = 200
 CHANGE_EVIDENCE = 0.3
 """Share of the single fit's residual an offset change must remove beyond what the best split removes on
 the no-change twin (``_change_survives_twin``)."""
@@ -511,7 +512,13 @@ def build_twin(
     if not (math.isfinite(shape_tolerance) and shape_tolerance >= 0):
         msg = f"shape tolerance must be a non-negative fraction, got {shape_tolerance!r}"
         raise InputError(msg)
-    if change is None:
+    if change is None and closed_form and shape_tolerance > 0 and best is truth:
+        try:  # lin_auto fits no cross terms: lm started from the closed form gives them on part of the sphere
+            shape = fit(pts[sub], model="sym", method="lm", norm=norm, init=truth, max_iter=_SHAPE_ITER)
+            truth = shaped_truth(truth, shape, shape_tolerance, cross_only=True)
+        except MargCalError as exc_shape:
+            log.info("no cross terms for the twin's shape: %s", exc_shape)
+    elif change is None:
         truth = shaped_truth(truth, best, shape_tolerance)
     slow = (0.0, 1.0)
     if rest_noise_raw is None and "rest_noise" not in skipped and best.stats is not None:
