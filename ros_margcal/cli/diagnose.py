@@ -18,6 +18,7 @@ from typing import Any
 
 from ..bench.diagnosis import main
 from ..diagnosis import diagnose, diagnose_holdout, rest_noise, summary, validator_downstream, write_report
+from ..diagnosis.twin import FIT_ERRORS
 from ..model.errors import ConfigError, MargCalError
 from ..recordings.read import read_recording
 from ..validation.shipped import load_default_validator
@@ -45,6 +46,11 @@ def register(subparsers: Any) -> None:
     p.add_argument("--holdout", type=float, default=None, metavar="SPLIT",
                    help="also fit on the first SPLIT of the recording (in time) and report the shrink on the rest")
     p.add_argument("--n-fit", type=int, default=6000, help="samples used by the fitting stages (default 6000)")
+    p.add_argument("--quick", action="store_true",
+                   help="fewer fitting samples and twin seeds: about three times faster, a noisier ranking")
+    p.add_argument("--shape-tolerance", type=float, default=0.0, metavar="FRACTION",
+                   help="cross-axis terms (off-diagonal of W relative to its diagonal) that count as the sensor's "
+                        "baseline, not as an ellipsoid_shape gap (default 0: offset and gains only)")
     p.add_argument("--no-validator", action="store_true", help="skip the validator stage and the retraining")
     p.add_argument("--retrain-sets", type=int, default=400,
                    help="simulated sets for the retrained validators, with and without the effect (default 400)")
@@ -78,7 +84,8 @@ def run(args: argparse.Namespace) -> int:
             validator = load_default_validator()
         except MargCalError as exc:
             print(f"diagnose: validator stage skipped: {exc}", file=sys.stderr)
-    options = {"sensor": sensor, "norm": args.norm, "rest_noise": noise, "n_fit": args.n_fit, "validator": validator}
+    options = {"sensor": sensor, "norm": args.norm, "rest_noise": noise, "n_fit": args.n_fit, "validator": validator,
+               "shape_tolerance": args.shape_tolerance, "quick": args.quick}
     diag = diagnose(rec, progress=_progress, **options)
     diag.downstream = validator_downstream(diag, validator, n_sets=args.retrain_sets)
     extra = None
@@ -103,7 +110,7 @@ def _holdout(rec: Any, split: float, options: dict[str, Any]) -> dict[str, Any]:
 
     try:
         held = diagnose_holdout(rec, split=split, **options)
-    except MargCalError as exc:
+    except FIT_ERRORS as exc:
         return {"split": split, "error": str(exc)}
     return {"split": split, "effect": held["effect"], "magnitude": held["magnitude"],
             "cause_on_first_part": held["fit"].cause, "gap_before": held["gap_before"], "gap_after": held["gap_after"],

@@ -4,7 +4,8 @@ A recording is put against its simulated twin (``twin``: same directions and tim
 simulator's baseline model) stage by stage (``stages``); every effect of the simulator's registry is
 fitted to close the gap and ranked by the share it removes (``ranking``); ``core.diagnose`` decides,
 ``downstream`` retrains the validator with the found effect, ``report`` writes the JSON and HTML;
-``changes`` locates an offset step that keeps one calibration from fitting a recording.
+``changes`` locates an offset step that keeps one calibration from fitting a recording;
+``baseline_noise`` gives the twin the recording's slow noise and, within a tolerance, its own shape.
 ``ros_margcal.bench.diagnosis`` checks it on recordings whose effect is withheld.
 """
 

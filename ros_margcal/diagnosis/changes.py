@@ -12,7 +12,11 @@ split point at once from cumulative sums of ``X^T X``, ``X^T y`` and ``y^T y`` (
 linear regression). The split with the lowest total residual sum of squares wins; it counts as an
 offset change when it removes at least ``MIN_DROP`` of the single fit's residual sum of squares
 (simulated recordings: one hard-iron jump of 0.15 field radii removes > 0.95; no effect, soft iron,
-drift or non-linearity remove < 0.45).
+drift or non-linearity remove < 0.45), and when the same is true with *one shape and two centres*
+(``shared_drop``: the five shape terms shared, the centre and constant per side). Two free ellipsoids
+fitted to the two halves of a tumble each cover part of the sphere and absorb a non-ellipsoidal
+distortion (clipping, a cubic non-linearity) locally, so the free split alone is no evidence of a
+step; a hard-iron step moves the centre and keeps the shape, which the shared fit tests.
 """
 
 from __future__ import annotations
@@ -25,7 +29,7 @@ from numpy.typing import NDArray
 
 from .stages import rest_noise
 
-__all__ = ["MIN_DROP", "OffsetChange", "locate_offset_change", "moving_mask"]
+__all__ = ["MIN_DROP", "MIN_SHARED_DROP", "OffsetChange", "locate_offset_change", "moving_mask"]
 
 log = logging.getLogger(__name__)
 
@@ -33,6 +37,9 @@ Array = NDArray[np.float64]
 
 MIN_DROP = 0.6
 """Share of the single ellipsoid fit's residual sum of squares a split must remove to count as an offset change."""
+MIN_SHARED_DROP = 0.65
+"""The same for one shape with two centres (simulated and independent-generator jumps of 0.1-0.9 field
+radii: > 0.77; clipping, cubic non-linearity, drift, no effect: < 0.6)."""
 _MIN_SIDE = 0.1  # each side of the split holds at least this share of the moving samples
 _N_CANDIDATES = 400
 _MOVE_SIGMAS = 3.0
@@ -51,6 +58,8 @@ class OffsetChange:
         offset_before: ellipsoid-fit centre of the moving samples before the change, raw units.
         offset_after: the same after the change.
         radius: median distance of the moving samples before the change from ``offset_before``, raw units.
+        shared_drop: share of the single fit's residual sum of squares removed by one shape with two
+            centres split at the change.
     """
 
     t: float
@@ -58,6 +67,7 @@ class OffsetChange:
     offset_before: Array
     offset_after: Array
     radius: float
+    shared_drop: float = 1.0
 
     @property
     def step(self) -> float:
@@ -112,13 +122,15 @@ def _centre(g: Array, xy: Array) -> Array:
     return np.asarray(np.linalg.solve(np.eye(3) - m, q[5:8]), dtype=np.float64)
 
 
-def locate_offset_change(t: Array, raw: Array, *, noise: float | None = None) -> OffsetChange | None:
+def locate_offset_change(t: Array, raw: Array, *, noise: float | None = None, min_drop: float = MIN_DROP,
+                         min_shared_drop: float = MIN_SHARED_DROP) -> OffsetChange | None:
     """The offset change that best splits ``raw`` (n, 3) into two ellipsoids, or None when there is none.
 
     Args:
         t: times (n,), seconds, non-decreasing.
         raw: readings (n, 3) in time order (an evenly spaced subsample is fine).
         noise: white noise std in raw units for the still/moving decision (None: ``stages.rest_noise``).
+        min_drop, min_shared_drop: the evidence a split needs (0, 0: the best split whatever it removes).
     """
     times = np.asarray(t, dtype=np.float64).reshape(-1)
     v = np.asarray(raw, dtype=np.float64)
@@ -144,10 +156,25 @@ def locate_offset_change(t: Array, raw: Array, *, noise: float | None = None) ->
     drop = 1.0 - float(cost[j]) / total
     kj = int(k[j])
     log.debug("offset change: best split at t=%.3f s removes %.3f of the ellipsoid fit's RSS", tm[kj], drop)
-    if drop < MIN_DROP:
+    if drop < min_drop:
+        return None
+    shared = 1.0 - _shared_rss(x, y, kj) / total
+    log.debug("offset change: one shape with two centres removes %.3f", shared)
+    if shared < min_shared_drop:
         return None
     before = centre + scale * _centre(g[kj - 1], xy[kj - 1])
     after = centre + scale * _centre(g[-1] - g[kj - 1], xy[-1] - xy[kj - 1])
     radius = float(np.median(np.linalg.norm(vm[:kj] - before, axis=1)))
     return OffsetChange(t=0.5 * float(tm[kj - 1] + tm[kj]), drop=drop, offset_before=before, offset_after=after,
-                        radius=radius)
+                        radius=radius, shared_drop=shared)
+
+
+def _shared_rss(x: Array, y: Array, k: int) -> float:
+    """Residual sum of squares of the ``_design`` fit with the five shape terms shared and the centre
+    and constant terms separate before and after sample ``k``."""
+    side = (np.arange(len(y)) >= k)[:, None]
+    lin = x[:, 5:]
+    xs = np.hstack([x[:, :5], np.where(side, 0.0, lin), np.where(side, lin, 0.0)])
+    coef, *_ = np.linalg.lstsq(xs, y, rcond=None)
+    res = y - xs @ coef
+    return float(res @ res)

@@ -6,7 +6,8 @@ observable effect of the registry (``ranking.rank_effects``) and decides:
 
 - ``where``: the stage with the largest gap;
 - ``cause``: ``"none"`` when the recording is within the baseline's spread (every stage gap below
-  ``NONE_GAP``), else the effect whose fitted magnitude removes the largest share of the gap (when an
+  ``NONE_GAP``, or a marginal gap that only a far-below-typical effect closes, ``MARGINAL_SIZE``),
+  else the effect whose fitted magnitude removes the largest share of the gap (when an
   effect of another group comes within ``ranking.CLOSE_MARGIN`` of it, the one the recording is closer
   to on the features that separate the two, ``ranking.separate_close_calls``) — or
   its group's name when the group holds several applicable effects (``ellipsoid_shape``, and
@@ -36,11 +37,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ..model.errors import ConfigError, MargCalError
+from ..model.errors import ConfigError, InputError
+from ..sim.simulation import EFFECTS
 from .downstream import N_SET, compare_validators
 from .ranking import EffectFit, applicable_effects, effective_group, equivalent_groups, gap_with, overall_gap, rank_effects
 from .stages import stage_gaps
-from .twin import DEFAULT_N_FIT, Baseline, Twin, build_twin, mean_features
+from .twin import DEFAULT_N_FIT, FIT_ERRORS, Baseline, Twin, build_twin, mean_features
 
 __all__ = ["NONE_GAP", "Diagnosis", "diagnose", "diagnose_holdout", "validator_downstream"]
 
@@ -54,6 +56,13 @@ MIN_SHRINK = 0.3
 """Share of the gap an effect must remove to be named; a marginal gap (< 2 NONE_GAP) that no effect
 explains counts as the baseline's spread (``none``), a larger one is ``unexplained``."""
 
+
+MARGINAL_SIZE = 0.4
+"""A marginal gap (< 2 NONE_GAP) that only an effect below this share of its typical (default) magnitude
+closes counts as the baseline's spread (``none``): a twin's noise model (its slow noise above all) is
+itself uncertain by that much."""
+QUICK_N_FIT = 2000
+"""Fitting samples of a ``quick`` diagnosis."""
 
 JUMP_EFFECT = "hard_iron_jump"
 """The registry effect a located offset step stands for."""
@@ -87,6 +96,8 @@ class Diagnosis:
     downstream: dict[str, Any] = field(default_factory=dict)
     skipped: dict[str, str] = field(default_factory=dict)
     offset_change: dict[str, float] = field(default_factory=dict)
+    reason: str = ""
+    """Why the cause is ``unexplained`` without a ranking (the twin could not be built), else empty."""
 
     @property
     def best(self) -> EffectFit | None:
@@ -127,6 +138,7 @@ class Diagnosis:
             "downstream": self.downstream,
             "skipped": [{"stage": k, "reason": v} for k, v in self.skipped.items()],
             "offset_change": self.offset_change,
+            "reason": self.reason,
         }
 
 
@@ -180,6 +192,8 @@ def diagnose(
     n_seeds: int = 3,
     n_spread: int = 6,
     validator: object | None = None,
+    shape_tolerance: float = 0.0,
+    quick: bool = False,
     progress: Callable[[int, int, str], None] | None = None,
 ) -> Diagnosis:
     """Diagnose the sim-to-real gap of one recording.
@@ -193,13 +207,25 @@ def diagnose(
         n_seeds: twin seeds averaged per evaluation.
         n_spread: baseline seeds for the spread (>= n_seeds).
         validator: validator of the ``validator`` stage (None: the stage is skipped).
+        shape_tolerance: cross-axis terms (off-diagonal entries of W relative to its diagonal) that count
+            as the sensor's baseline, not as an ``ellipsoid_shape`` gap (``twin.shaped_truth``; 0: the
+            simulator's baseline, offset and gains only). A magnetometer in a vehicle always has some soft
+            iron: give the level that is expected and only a larger shape is named.
+        quick: fewer fitting samples (at most ``QUICK_N_FIT``) and twin seeds (2 averaged, 4 for the
+            spread): about three times faster, a noisier ranking.
         progress: called as ``progress(done, total, effect_name)`` after each effect.
+
+    A recording that makes no usable twin (too short, static, nothing converges) is not refused: its
+    cause is ``unexplained`` and ``Diagnosis.reason`` says why. Stages that cannot be computed are
+    left out of the gaps (``stages.stage_gaps``) and effects that cannot be fitted out of the ranking.
 
     Raises:
         ConfigError: unknown sensor or bad option.
-        InputError, DegenerateDataError: unusable recording.
+        InputError: arrays of the wrong shape or with non-finite values (not a recording).
     """
     t0 = time.monotonic()
+    if quick:
+        n_fit, n_seeds, n_spread = min(n_fit, QUICK_N_FIT), min(n_seeds, 2), min(n_spread, 4)
     t, raw, temp, label = _arrays(recording)
     sensor = sensor or label
     if sensor not in ("mag", "accel"):
@@ -208,15 +234,21 @@ def diagnose(
     if n_seeds < 1 or n_spread < max(2, n_seeds):
         msg = f"need n_seeds >= 1 and n_spread >= max(2, n_seeds), got {n_seeds}, {n_spread}"
         raise ConfigError(msg)
-    twin = build_twin(t, raw, sensor=sensor, temp=temp, norm=norm, rest_noise_raw=rest_noise, n_fit=n_fit,
-                      validator=validator)
-    base = twin.spread(n_spread)
+    try:
+        twin = build_twin(t, raw, sensor=sensor, temp=temp, norm=norm, rest_noise_raw=rest_noise, n_fit=n_fit,
+                          validator=validator, shape_tolerance=shape_tolerance)
+        base = twin.spread(n_spread)
+    except InputError:
+        raise
+    except FIT_ERRORS as exc:  # a recording that makes no usable twin still gets a verdict, with the reason
+        log.info("no twin: %s", exc)
+        return _no_twin(sensor, len(t), str(exc), time.monotonic() - t0)
     seeds = base.seeds[:n_seeds]
     before = stage_gaps(twin.features_rec.values, base.mean, base.sd)  # against every seed of the spread
     gap_before = overall_gap(before)
     observable, hidden = applicable_effects(sensor)
     has_temp = twin.temp is not None and bool(np.ptp(twin.temp) > 0)
-    fits = rank_effects(twin, base, observable, seeds=seeds, progress=progress, refine_seeds=base.seeds)
+    fits = rank_effects(twin, base, observable, seeds=seeds, progress=progress, refine_seeds=base.seeds, quick=quick)
     if twin.change is not None:
         fits = _prefer_located_jump(fits)
     group_of = {e.name: effective_group(e, has_temp) for e in observable}
@@ -226,7 +258,13 @@ def diagnose(
     best = fits[0] if fits else None
     top = max(before.values(), default=0.0)
     members: list[str]
-    if best is None or top < NONE_GAP or best.magnitude == 0.0 or (best.shrink < MIN_SHRINK and top < 2 * NONE_GAP):
+    reason = ""
+    if not before or (best is None and top >= NONE_GAP):
+        reason = "no stage of the recording could be compared with its twin" if not before else \
+            "no effect of the registry could be fitted to the recording"
+        cause, members, shrink, after, stages_after = "unexplained", [], 0.0, gap_before, dict(before)
+    elif best is None or top < NONE_GAP or best.magnitude == 0.0 or (top < 2 * NONE_GAP and (
+            best.shrink < MIN_SHRINK or best.magnitude < MARGINAL_SIZE * EFFECTS[best.name].default_magnitude)):
         cause, members, shrink, after, stages_after = "none", [], 0.0, gap_before, dict(before)
     elif best.shrink < MIN_SHRINK:
         cause, members, shrink, after, stages_after = "unexplained", [], best.shrink, best.gap_after, best.stages_after
@@ -239,8 +277,17 @@ def diagnose(
         stages_before=before, stages_after=stages_after, effects=fits, equivalent=equivalent_groups(observable, has_temp),
         unobservable=[e.name for e in hidden], null_gaps=_null_gaps(base), sensor=sensor, n_samples=len(t),
         n_fit=int(twin.sub.size), noise=twin.noise, seconds=time.monotonic() - t0, twin=twin, baseline=base,
-        skipped=dict(twin.skipped), offset_change=_change_dict(twin),
+        skipped=dict(twin.skipped), offset_change=_change_dict(twin), reason=reason,
     )
+
+
+def _no_twin(sensor: str, n: int, reason: str, seconds: float) -> Diagnosis:
+    """The verdict on a recording whose twin cannot be built: ``unexplained``, with the reason."""
+    observable, hidden = applicable_effects(sensor)
+    return Diagnosis(where="", cause="unexplained", cause_effects=[], shrink=0.0, gap_before=math.nan,
+                     gap_after=math.nan, stages_before={}, stages_after={}, effects=[],
+                     equivalent=equivalent_groups(observable), unobservable=[e.name for e in hidden], null_gaps=[],
+                     sensor=sensor, n_samples=n, n_fit=0, noise=math.nan, seconds=seconds, reason=reason)
 
 
 def diagnose_holdout(recording: Any, *, split: float = 0.5, **options: Any) -> dict[str, Any]:
@@ -263,11 +310,13 @@ def diagnose_holdout(recording: Any, *, split: float = 0.5, **options: Any) -> d
         obj.temp = None if temp is None else temp[sl]
     d1 = diagnose(first, **options)
     sensor = options.get("sensor") or label
+    quick = bool(options.get("quick"))
+    n_fit = options.get("n_fit", DEFAULT_N_FIT)
     twin2 = build_twin(second.t, second.raw, sensor=sensor, temp=second.temp, norm=options.get("norm"),
-                       rest_noise_raw=options.get("rest_noise"), n_fit=options.get("n_fit", DEFAULT_N_FIT),
-                       validator=options.get("validator"))
-    base2 = twin2.spread(options.get("n_spread", 6))
-    seeds = base2.seeds[: options.get("n_seeds", 3)]
+                       rest_noise_raw=options.get("rest_noise"), n_fit=min(n_fit, QUICK_N_FIT) if quick else n_fit,
+                       validator=options.get("validator"), shape_tolerance=options.get("shape_tolerance", 0.0))
+    base2 = twin2.spread(min(options.get("n_spread", 6), 4) if quick else options.get("n_spread", 6))
+    seeds = base2.seeds[: min(options.get("n_seeds", 3), 2) if quick else options.get("n_seeds", 3)]
     before2 = stage_gaps(twin2.features_rec.values, mean_features(base2.features[: len(seeds)])[0], base2.sd)
     gap_before2 = overall_gap(before2)
     best = d1.best
@@ -310,7 +359,7 @@ def validator_downstream(diag: Diagnosis, validator: object | None, *, n_sets: i
         cmp = compare_validators(pts[pick], twin.best, validator, effects, span_s=span,
                                  recording=max(2, round(len(pts) / len(pick))), noise=noise, kind=kind,
                                  n_sets=n_sets, seed=seed)
-    except MargCalError as exc:
+    except FIT_ERRORS as exc:
         return {"available": False, "reason": f"validator downstream failed: {exc}"}
     v = cmp["validators"]
     out: dict[str, Any] = {"available": True, **cmp, "predicted_before": v["original"]["predicted"],

@@ -38,7 +38,7 @@ from numpy.typing import NDArray
 
 from ..sim.simulation import EFFECTS, Effect
 from .stages import stage_floor, stage_gaps
-from .twin import Baseline, Twin, mean_features
+from .twin import FIT_ERRORS, Baseline, Twin, mean_features
 
 __all__ = [
     "CLOSE_MARGIN", "DRIFT_GROUP", "EffectFit", "applicable_effects", "effective_group", "equivalent_groups",
@@ -156,8 +156,10 @@ def gap_with(twin: Twin, base: Baseline, effect: str, m: float, seeds: tuple[int
     return overall_gap(stages), stages
 
 
-def fit_effect(twin: Twin, base: Baseline, effect: Effect, *, seeds: tuple[int, ...] = (0, 1, 2)) -> EffectFit:
-    """Fit ``effect``'s magnitude to the recording (grid + golden section in log magnitude)."""
+def fit_effect(twin: Twin, base: Baseline, effect: Effect, *, seeds: tuple[int, ...] = (0, 1, 2), grid_points: int = _GRID,
+               golden_steps: int = _GOLDEN_STEPS) -> EffectFit:
+    """Fit ``effect``'s magnitude to the recording (grid of ``grid_points`` + ``golden_steps`` of golden
+    section in log magnitude)."""
     before_stages = stage_gaps(twin.features_rec.values, mean_features([twin.features(None, s) for s in seeds])[0],
                                base.sd)
     before = overall_gap(before_stages)
@@ -173,7 +175,7 @@ def fit_effect(twin: Twin, base: Baseline, effect: Effect, *, seeds: tuple[int, 
             curve[m] = gap_with(twin, base, effect.name, m, seeds)
         return curve[m][0]
 
-    grid = np.linspace(log_hi - _LOW_DECADES, log_hi, _GRID)
+    grid = np.linspace(log_hi - _LOW_DECADES, log_hi, max(3, grid_points))
     values = [evaluate(float(x)) for x in grid]
     j = int(np.argmin(values))
     step = float(grid[1] - grid[0])
@@ -186,7 +188,7 @@ def fit_effect(twin: Twin, base: Baseline, effect: Effect, *, seeds: tuple[int, 
     a, b = float(grid[j]) - step, min(float(grid[j]) + step, log_hi)
     c, d = b - _INV_PHI * (b - a), a + _INV_PHI * (b - a)
     fc, fd = evaluate(c), evaluate(d)
-    for _ in range(_GOLDEN_STEPS):
+    for _ in range(golden_steps):
         if fc <= fd:
             b, d, fd = d, c, fc
             c = b - _INV_PHI * (b - a)
@@ -208,7 +210,7 @@ def fit_effect(twin: Twin, base: Baseline, effect: Effect, *, seeds: tuple[int, 
 
 def rank_effects(twin: Twin, base: Baseline, effects: list[Effect], *, seeds: tuple[int, ...] = (0, 1, 2),
                  progress: object | None = None, refine_seeds: tuple[int, ...] = (), n_refine: int = _N_REFINE,
-                 ) -> list[EffectFit]:
+                 quick: bool = False) -> list[EffectFit]:
     """Fit every effect and sort by shrink (largest first).
 
     With ``refine_seeds`` (e.g. every seed of the baseline's spread), the ``n_refine`` leading
@@ -218,11 +220,15 @@ def rank_effects(twin: Twin, base: Baseline, effects: list[Effect], *, seeds: tu
     the features more than the noise does, so two effects that both explain most of the gap (a drift
     and a warm-up) are compared on what their draws allow. The magnitude search itself stays on the
     baseline's spread (with the effect's own spread it would favour the strong, widely spread
-    magnitudes).
+    magnitudes). ``quick`` searches a coarser grid with fewer golden-section steps.
     """
     fits = []
+    search = {"grid_points": 5, "golden_steps": 3} if quick else {}
     for i, e in enumerate(effects):
-        fits.append(fit_effect(twin, base, e, seeds=seeds))
+        try:
+            fits.append(fit_effect(twin, base, e, seeds=seeds, **search))
+        except FIT_ERRORS as exc:  # one effect that cannot be simulated or fitted must not lose the ranking
+            log.info("effect %s left out of the ranking: %s", e.name, exc)
         if callable(progress):
             progress(i + 1, len(effects), e.name)
     fits.sort(key=lambda f: (-f.shrink, f.gap_after))

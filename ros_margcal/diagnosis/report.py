@@ -16,6 +16,7 @@ import numpy as np
 
 from ..model.errors import ConfigError
 from .core import Diagnosis
+from .twin import FIT_ERRORS
 
 __all__ = ["figure_png", "summary", "write_report"]
 
@@ -126,11 +127,12 @@ def summary(diag: Diagnosis) -> str:
     """A few lines for the console."""
     lines = [f"where: {diag.where} (stage gap {diag.stages_before.get(diag.where, 0.0):.1f}; overall {diag.gap_before:.2f},"
              f" baseline's own {max(diag.null_gaps, default=0.0):.2f})"]
+    best = diag.best
     if diag.cause == "none":
         lines.append("cause: none (the recording is within the baseline's own spread)")
+    elif best is None or diag.reason:
+        lines.append(f"cause: {diag.cause} ({diag.reason or 'no effect could be fitted'})")
     else:
-        best = diag.best
-        assert best is not None
         also = f" ({' / '.join(diag.cause_effects)}: cannot be told apart)" if len(diag.cause_effects) > 1 else ""
         lines.append(f"cause: {diag.cause}{also}; {best.name} at {best.magnitude:.4g} {best.unit}")
         lines.append(f"shrink: {100 * diag.shrink:.0f} % of the gap removed "
@@ -172,8 +174,11 @@ def write_report(diag: Diagnosis, out_dir: str | Path, *, extra: dict[str, Any] 
     jpath.write_text(json.dumps(_json_safe(data), indent=2), encoding="utf-8")
     figs = []
     if diag.twin is not None:
-        figs = [_img(_sphere_map(diag), "residual over direction"), _img(_time_plot(diag), "residual over time"),
-                _img(_gap_plot(diag), "stage gaps before and after")]
+        try:
+            figs = [_img(_sphere_map(diag), "residual over direction"), _img(_time_plot(diag), "residual over time"),
+                    _img(_gap_plot(diag), "stage gaps before and after")]
+        except FIT_ERRORS as exc:  # the report is written without its plots rather than not at all
+            log.warning("report plots left out: %s", exc)
     eff_rows = [[f.name, f.group, f"{f.magnitude:.4g} {f.unit}", f"{f.gap_before:.2f}", f"{f.gap_after:.2f}",
                  f"{100 * f.shrink:.0f} %"] for f in diag.effects]
     stage_rows = [[k, f"{v:.2f}", f"{diag.stages_after.get(k, v):.2f}"] for k, v in diag.stages_before.items()]

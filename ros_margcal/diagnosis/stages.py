@@ -331,7 +331,7 @@ def stage_features(
     noise_rel = rest_noise(raw) / r_raw
     values: dict[str, Array] = {"rest_noise": np.array([_log10(noise_rel)])}
     values.update(_readout_features(raw))
-    sym = _sym_fit(pts, norm)
+    sym = _sym_fit(pts, norm, closed_form)
     sym_rms = float(sym.stats.rms_relative) if sym is not None and sym.stats is not None else float("nan")
     values["residual_size"] = np.array([_log10(float(np.sqrt(np.mean(r**2)))), _log10(sym_rms)])
     basis = sh_basis(dirs)
@@ -353,8 +353,10 @@ def stage_features(
     return StageFeatures(values=values, residual=r, dirs=dirs, t=t[sub], rest_noise=noise_rel)
 
 
-def _sym_fit(pts: Array, norm: float | None) -> Calibration | None:
+def _sym_fit(pts: Array, norm: float | None, closed_form: bool = False) -> Calibration | None:
     try:
+        if closed_form:  # lm would run to its iteration limit on the data that needed the closed form
+            return fit(pts, model="sym", method="lin_auto", norm=norm)
         return fit(pts, model="sym", method="lm", norm=norm, max_iter=_MAX_ITER)
     except MargCalError:
         return None
@@ -365,14 +367,15 @@ def stage_gaps(
 ) -> dict[str, float]:
     """Gap of each stage on the common z scale: RMS over its features of ``(rec - mean) / max(sd, floor)``.
 
-    Stages missing on either side are left out.
+    Stages missing on any side (the recording, the twins' mean or their spread: a stage that could not
+    be computed for one of them) are left out.
     """
     out: dict[str, float] = {}
     for name in STAGES:
-        if name not in rec or name not in twin_mean:
+        if name not in rec or name not in twin_mean or name not in twin_sd:
             continue
         a, m, s = rec[name], twin_mean[name], twin_sd[name]
-        if a.shape != m.shape:
+        if a.shape != m.shape or s.shape != m.shape:
             continue
         floor = stage_floor(name, a.shape)
         z = (a - m) / np.maximum(s, floor)

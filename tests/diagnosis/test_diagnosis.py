@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -19,7 +20,7 @@ from ros_margcal.diagnosis import (
 )
 from ros_margcal.diagnosis.stages import sh_basis, sh_power, stage_features
 from ros_margcal.diagnosis.twin import median_step_deg, subsample
-from ros_margcal.model.errors import ConfigError, DegenerateDataError, InputError, RecordingError
+from ros_margcal.model.errors import ConfigError, InputError, RecordingError
 from ros_margcal.recordings.recording import Recording
 from ros_margcal.sim.simulation import directions, magnetometer_stream, random_sensor, simulate
 
@@ -168,15 +169,31 @@ def test_report_files(tmp_path: Path) -> None:
     [
         (np.full((200, 3), np.nan), InputError, "NaN"),
         (np.ones((200, 2)), InputError, "shape"),
-        (np.ones((10, 3)), DegenerateDataError, "at least"),
-        (np.tile([1.0, 2.0, 3.0], (500, 1)) + 1e-9 * np.arange(1500).reshape(500, 3), DegenerateDataError, "directions"),
     ],
 )
-def test_bad_input_raises_clear_errors(raw: np.ndarray, error: type[Exception], match: str) -> None:
-    """Corrupt or static input is refused with the package's error and a message that says why."""
+def test_malformed_arrays_raise_clear_errors(raw: np.ndarray, error: type[Exception], match: str) -> None:
+    """Arrays that are no recording (non-finite, wrong shape) are refused with the package's error."""
     rec = Recording(t=np.arange(len(raw)) * 0.01, raw=raw, sensor="mag")
     with pytest.raises(error, match=match):
         diagnose(rec, sensor="mag")
+
+
+@pytest.mark.parametrize(
+    ("raw", "match"),
+    [
+        (np.ones((10, 3)), "at least"),
+        (np.tile([1.0, 2.0, 3.0], (500, 1)) + 1e-9 * np.arange(1500).reshape(500, 3), "directions"),
+    ],
+)
+def test_unusable_recording_gets_an_unexplained_verdict(raw: np.ndarray, match: str, tmp_path: Path) -> None:
+    """A recording too short or too static for a twin is not refused: the cause is unexplained, the
+    reason says why, and the report is written."""
+    rec = Recording(t=np.arange(len(raw)) * 0.01, raw=raw, sensor="mag")
+    d = diagnose(rec, sensor="mag")
+    assert d.cause == "unexplained"
+    assert match in d.reason
+    jpath, _ = write_report(d, tmp_path)
+    assert json.loads(jpath.read_text())["reason"] == d.reason
 
 
 def test_unknown_sensor_is_a_config_error() -> None:
@@ -268,8 +285,8 @@ def test_recording_no_single_fit_can_fit_is_diagnosed_as_a_jump() -> None:
 
 
 def test_unfittable_sides_say_where_the_offset_changes(monkeypatch: pytest.MonkeyPatch) -> None:
-    """When neither the whole recording nor its sides can be fitted, the error gives the change's time
-    and asks for the parts to be diagnosed separately."""
+    """When neither the whole recording nor its sides can be fitted, the twin is the closed-form fit of
+    the whole and the report gives the change's time and suggests diagnosing the parts separately."""
     from ros_margcal.diagnosis import twin as twin_module
     from ros_margcal.model.errors import ConvergenceError
 
@@ -280,8 +297,9 @@ def test_unfittable_sides_say_where_the_offset_changes(monkeypatch: pytest.Monke
     rec, sigma = _stream({"hard_iron_jump": 0.9}, duration=60.0)
     change = twin_module.locate_offset_change(rec.t, rec.raw)
     assert change is not None
-    with pytest.raises(DegenerateDataError, match=rf"offset change at t \u2248 {change.t:.1f} s.*separately"):
-        build_twin(rec.t, rec.raw, sensor="mag", rest_noise_raw=sigma)
+    twin = build_twin(rec.t, rec.raw, sensor="mag", rest_noise_raw=sigma)
+    assert twin.closed_form and twin.change is None
+    assert re.search(rf"offset change at t \u2248 {change.t:.1f} s.*separately", twin.skipped["offset_change"])
 
 
 def test_real_attached_magnet_change_is_located(real_data_dir: Path) -> None:

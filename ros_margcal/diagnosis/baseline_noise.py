@@ -1,0 +1,117 @@
+"""What the twin's baseline sensor holds beyond the simulator's: slow noise and the sensor's own shape.
+
+- *Slow noise*: real sensors (and the independent test generator) have a slowly wandering offset
+  (Gauss-Markov / AR(1) noise, flicker) besides the white rest noise. A twin with white noise only has
+  too tight a residual spread for them: ``estimate_slow_noise`` measures it on the recording's residual
+  and ``ar1_noise`` simulates it (``twin.Twin.features`` adds it before the read-out).
+- *Shape*: a magnetometer always has some soft iron; ``shaped_truth`` keeps cross-axis terms up to a
+  tolerance the caller gives as part of the baseline sensor, so only a larger shape is a gap.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.signal import lfilter
+
+from ..model.calibration import Calibration
+from .stages import sh_basis
+
+__all__ = ["ar1_noise", "estimate_slow_noise", "shaped_truth"]
+
+Array = NDArray[np.float64]
+
+_SLOW_MIN_SHARE = 0.04
+_SLOW_SH = 1  # harmonics removed before the slow noise is measured (1: the mean only)
+_SLOW_MAX_RATIO = 1.0
+
+
+def ar1_noise(t: Array, std: float, tau: float, rng: np.random.Generator) -> Array:
+    """Gauss-Markov (AR(1)) noise (n, 3) of stationary ``std`` and correlation time ``tau`` at times ``t``
+    (the step of the median sample interval: a recording with gaps keeps its correlation per sample)."""
+    n = t.size
+    dt = float(np.median(np.diff(t))) if n > 1 else 1.0
+    phi = math.exp(-max(dt, 0.0) / max(tau, 1e-9))
+    innov = rng.normal(size=(n, 3)) * (std * math.sqrt(max(1.0 - phi * phi, 0.0)))
+    if n:
+        innov[0] = rng.normal(size=3) * std
+    return np.asarray(lfilter([1.0], [1.0, -phi], innov, axis=0), dtype=np.float64)
+
+
+def estimate_slow_noise(t: Array, residual: Array, white: float, dirs: Array) -> tuple[float, float]:
+    """Slow (coloured) noise beyond the white noise, from the best fit's norm residual (fractions of the radius).
+
+    What the residual holds beyond its static direction pattern (harmonics to degree 4) is white noise
+    plus a slow part: its autocorrelation at short lags (1-5 samples of ``t``) is the slow part's share
+    ``a`` of the variance, its correlation time the one whose twin residual wanders as much (``_slow_time``). The slow
+    part counts when ``a`` exceeds ``_SLOW_MIN_SHARE`` (white noise alone: ~0.01), with a std of at most
+    ``_SLOW_MAX_RATIO`` times the white rest noise ``white`` (a larger slow part is an effect, a drift
+    or a temperature course, not noise). Real sensors and the independent test generator have such
+    noise; a twin with white noise only has too tight a residual spread for them.
+    """
+    if residual.size < 100 or not white > 0 or np.ptp(t) <= 0:
+        return 0.0, 1.0
+    basis = sh_basis(dirs)
+    left = residual - basis[:, :_SLOW_SH] @ np.linalg.lstsq(basis[:, :_SLOW_SH], residual, rcond=None)[0]
+    left = left - left.mean()
+    den = float(left @ left)
+    if den <= 0:
+        return 0.0, 1.0
+    acf = np.array([float(left[k:] @ left[:-k]) / den for k in range(1, 6)])
+    share = float(np.mean(acf))
+    if share <= _SLOW_MIN_SHARE:
+        return 0.0, 1.0
+    std = min(math.sqrt(share * den / left.size), _SLOW_MAX_RATIO * white)
+    return std, _slow_time(t, left, dirs, std, math.sqrt(max(den / left.size - std**2, 0.0)))
+
+
+def _slow_offset_rms(t: Array, r: Array, dirs: Array) -> float:
+    """RMS of what slowly modulated degree-1 terms (``cos(pi k tau) d``, k = 1, 2) explain of ``r`` beyond
+    the static ones: how much of a residual is an offset that wanders over the recording."""
+    tau = (t - t[0]) / max(float(np.ptp(t)), 1e-300)
+    static = np.column_stack([np.ones(t.size), dirs])
+    full = np.hstack([static] + [np.cos(math.pi * k * tau)[:, None] * dirs for k in (1, 2)])
+    f0 = static @ np.linalg.lstsq(static, r, rcond=None)[0]
+    f1 = full @ np.linalg.lstsq(full, r, rcond=None)[0]
+    return float(np.sqrt(np.mean((f1 - f0) ** 2)))
+
+
+def _slow_time(t: Array, left: Array, dirs: Array, std: float, white: float) -> float:
+    """Correlation time of the slow noise: the one (of a log-spaced grid) whose simulated residual along
+    the recording's directions has the recording's wandering offset (``_slow_offset_rms``, the
+    ``residual_time`` stage's first feature); the norm residual sees the noise only along the turning
+    direction, so its own autocorrelation mostly measures the turning."""
+    span = float(np.ptp(t))
+    target = _slow_offset_rms(t, left, dirs)
+    rng = np.random.default_rng(0)
+    best, best_err = 1.0, math.inf
+    for tau in np.geomspace(0.25, max(0.25 * span, 0.5), 9):
+        got = np.mean([_slow_offset_rms(t, np.einsum("ij,ij->i", dirs, ar1_noise(t, std, float(tau), rng))
+                                        + white * rng.normal(size=t.size), dirs) for _ in range(3)])
+        err = abs(math.log(max(float(got), 1e-300) / max(target, 1e-300)))
+        if err < best_err:
+            best, best_err = float(tau), err
+    return best
+
+
+def shaped_truth(diag: Calibration, best: Calibration, tolerance: float, *, cross_only: bool = False) -> Calibration:
+    """The twin's true sensor: the baseline ``diag`` fit, or with ``tolerance`` > 0 the best (``sym``)
+    fit whose cross-axis terms (off-diagonal entries of W relative to its diagonal) are clipped to
+    ``±tolerance``: a shape within the tolerance counts as the sensor's baseline and only its excess is
+    left as a gap (the ``ellipsoid_shape`` effects). With ``cross_only`` only those cross terms are taken
+    from ``best``, onto the offset and gains of ``diag`` (a ``best`` fitted on part of the sphere, whose
+    scale along the unseen directions is not to be trusted)."""
+    if tolerance <= 0 or best.model != "sym" or best is diag:
+        return diag
+    w = np.asarray(best.matrix, dtype=np.float64)
+    d = np.sqrt(np.abs(np.diag(w)))
+    c = w / np.outer(d, d)
+    off = ~np.eye(3, dtype=bool)
+    c[off] = np.clip(c[off], -tolerance, tolerance)
+    c = 0.5 * (c + c.T)
+    if cross_only:
+        d = np.sqrt(np.abs(np.diag(np.asarray(diag.matrix, dtype=np.float64))))
+        return diag.replace(matrix=c * np.outer(d, d), model="sym")
+    return best.replace(matrix=c * np.outer(d, d), model="sym")

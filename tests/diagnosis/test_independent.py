@@ -1,0 +1,127 @@
+"""The diagnosis on recordings it was not built from (``tests/independent/generator.py``): no traceback,
+always a verdict, no offset change without evidence, and the pieces that make the twin fit such data
+(closed-form fallback, slow noise, the sensor's own shape)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from types import ModuleType
+
+import numpy as np
+import pytest
+
+from ros_margcal.diagnosis import diagnose, locate_offset_change, stage_gaps
+from ros_margcal.diagnosis.baseline_noise import ar1_noise, estimate_slow_noise, shaped_truth
+from ros_margcal.diagnosis.twin import subsample
+from ros_margcal.model.calibration import Calibration
+from ros_margcal.recordings.recording import Recording
+
+VERDICTS = {"none", "unexplained", "ellipsoid_shape", "slow_drift", "temperature", "saturation", "nonlinearity",
+            "quantization", "hard_iron_jump", "noise", "disturbance", "bias_drift"}
+
+
+def _recording(gen: ModuleType, effect: str, motion: str = "tumble", duration: float = 20.0, seed: int = 1,
+               magnitude: float | None = None) -> tuple[Recording, float]:
+    rec = gen.generate("mag", motion, duration, 50.0, seed, effect=effect, magnitude=magnitude)
+    return Recording(t=rec["t"], raw=rec["xyz"], sensor="mag"), float(rec["truth"]["norm"])
+
+
+@pytest.mark.parametrize(("effect", "magnitude"), [("saturation", 0.9), ("nonlinearity", 0.02)])
+def test_hostile_independent_recording_gets_a_verdict_and_no_split(independent: ModuleType, effect: str,
+                                                                    magnitude: float) -> None:
+    """Clipping and a cubic non-linearity (which kept lm from converging and read as a hard-iron change)
+    give a verdict with a ranking, and no offset change is claimed."""
+    rec, norm = _recording(independent, effect, magnitude=magnitude)
+    d = diagnose(rec, sensor="mag", norm=norm, quick=True)
+    assert d.cause in VERDICTS
+    assert d.effects  # the ranking went on
+    assert d.offset_change == {}
+    assert json.dumps(d.to_dict(), default=float)
+
+
+def test_clean_short_recording_is_not_split(independent: ModuleType) -> None:
+    """A clean 20 s recording holds no offset change: neither the change search nor the diagnosis splits it."""
+    rec, norm = _recording(independent, "none", seed=3)
+    sub = subsample(len(rec.t), 6000)
+    assert locate_offset_change(rec.t[sub], rec.raw[sub]) is None
+    d = diagnose(rec, sensor="mag", norm=norm, quick=True)
+    assert d.offset_change == {}
+    assert d.cause != "hard_iron_jump"
+
+
+def test_a_real_jump_is_still_located(independent: ModuleType) -> None:
+    """The shared-shape test keeps a true hard-iron step of 0.2 field radii (the generator's default)."""
+    rec, _ = _recording(independent, "hard_iron_jump", duration=30.0)
+    change = locate_offset_change(rec.t, rec.raw)
+    assert change is not None
+    assert change.t == pytest.approx(15.0, abs=1.0)
+    assert change.shared_drop > 0.9
+    assert change.relative_step == pytest.approx(0.2, rel=0.2)
+
+
+def test_partial_coverage_falls_back_to_the_closed_form(independent: ModuleType) -> None:
+    """A band of directions (|roll|, |pitch| <= 20 deg) on which lm does not converge is measured with
+    the closed-form fit, recording and twins alike, and gets a verdict."""
+    rec, norm = _recording(independent, "none", motion="band")
+    d = diagnose(rec, sensor="mag", norm=norm, quick=True)
+    assert d.twin is not None and d.twin.closed_form
+    assert d.cause in VERDICTS
+    assert d.stages_before
+
+
+def test_misalignment_is_none_with_the_sensors_shape_as_baseline(independent: ModuleType) -> None:
+    """A rotation of the sensor axes is invisible to magnitudes: with the generator's own soft iron
+    counted as the sensor's baseline the verdict is none (misalignment is listed as unobservable)."""
+    rec, norm = _recording(independent, "misalignment", duration=30.0, seed=2)
+    d = diagnose(rec, sensor="mag", norm=norm, quick=True, shape_tolerance=0.05)
+    assert d.cause == "none"
+    assert "misalignment" in d.unobservable
+
+
+def test_stage_missing_from_the_spread_is_left_out() -> None:
+    """A stage the effect twins have but the baseline's spread lacks (the validator stage when the
+    baseline twins could not give it) is left out, not a KeyError."""
+    rec = {"residual_size": np.array([1.0, 1.0]), "validator": np.array([0.3])}
+    mean = {"residual_size": np.array([0.0, 0.0]), "validator": np.array([0.0])}
+    sd = {"residual_size": np.array([0.5, 0.5])}
+    assert set(stage_gaps(rec, mean, sd)) == {"residual_size"}
+
+
+def test_shaped_truth_keeps_cross_terms_up_to_the_tolerance() -> None:
+    """Cross-axis terms within the tolerance are the baseline's; larger ones are clipped to it."""
+    w = np.array([[1.0, 0.03, -0.1], [0.03, 1.2, 0.0], [-0.1, 0.0, 0.9]])
+    best = Calibration(np.zeros(3), w, norm=1.0, model="sym")
+    diag = Calibration(np.zeros(3), np.diag(np.diag(w)), norm=1.0, model="diag")
+    assert shaped_truth(diag, best, 0.0) is diag
+    out = shaped_truth(diag, best, 0.05).matrix
+    d = np.sqrt(np.outer(np.diag(w), np.diag(w)))
+    assert out[0, 1] == pytest.approx(0.03)
+    assert out[0, 2] / d[0, 2] == pytest.approx(-0.05)
+    assert np.allclose(np.diag(out), np.diag(w))
+
+
+def test_slow_noise_is_found_only_where_there_is_some() -> None:
+    """The slow part of a residual (AR(1) of half the white std) is found with about its size; white
+    noise alone gives none."""
+    rng = np.random.default_rng(4)
+    t = np.arange(3000) * 0.02
+    dirs = np.tile([0.0, 0.0, 1.0], (3000, 1))  # a still direction: the residual sees the noise fully
+    white = 0.002 * rng.normal(size=3000)
+    slow = ar1_noise(t, 0.001, 5.0, rng)[:, 2]
+    std, tau = estimate_slow_noise(t, white + slow, 0.002, dirs)
+    assert std == pytest.approx(0.001, rel=0.35)
+    assert 1.0 < tau < 15.0
+    assert estimate_slow_noise(t, white, 0.002, dirs)[0] == 0.0
+
+
+def test_cli_writes_a_verdict_for_a_hostile_independent_csv(independent: ModuleType, tmp_path: Path) -> None:
+    """margcal diagnose on the generator's CSV (t,x,y,z in tesla, --norm given) exits 0 with diagnosis.json."""
+    from ros_margcal.cli import main
+
+    rec = independent.generate("mag", "tumble", 20.0, 50.0, 5, effect="nonlinearity")
+    independent.write_csv(tmp_path / "nl.csv", rec)
+    out = tmp_path / "d"
+    assert main(["diagnose", str(tmp_path / "nl.csv"), "--sensor", "mag", "--norm", "4.8e-05", "--out", str(out),
+                 "--quick", "--no-validator"]) == 0
+    assert json.loads((out / "diagnosis.json").read_text())["cause"] in VERDICTS
