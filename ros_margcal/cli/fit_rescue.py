@@ -38,6 +38,20 @@ from ..stream.config import STATIC_SPREAD, PipelineConfig, plausibility
 
 __all__ = ["STATIC_SPREAD", "Part", "Rescue", "check", "config_for", "heading_text", "rescue"]
 
+RESCUE_SHARED_DROP = 0.5
+"""Evidence an offset change needs here: one shape with two centres removing half the single fit's
+residual. Lower than the diagnosis's ``changes.MIN_SHARED_DROP`` (0.65), which searches every recording:
+here the search runs only after the plain fit failed or left a residual above the online limit, and each
+side must then fit on its own (BROAD 32, a magnet attached 1 cm away, removes 0.58)."""
+_LOCATE_POINTS = 6000
+"""The change search runs on an evenly spaced subsample of at most this many points (as the diagnosis)."""
+
+
+def _locate(t: Array, points: Array) -> OffsetChange | None:
+    """``locate_offset_change`` on an evenly spaced subsample, with the rescue's evidence threshold."""
+    pick = np.linspace(0, len(points) - 1, min(_LOCATE_POINTS, len(points))).astype(np.intp)
+    return locate_offset_change(np.asarray(t)[pick], np.asarray(points)[pick], min_shared_drop=RESCUE_SHARED_DROP)
+
 Array = NDArray[np.float64]
 
 _MIN_POINTS = 10  # fewer samples than this are not fitted at all
@@ -168,7 +182,7 @@ def _segment(t: Array, points: Array, label: str, depth: int, kw: dict[str, obje
         if not why:
             return [Part(label, cal, n)]
     if depth > 0:
-        ch = locate_offset_change(t, points)
+        ch = _locate(t, points)
         if ch is not None:
             before = t < ch.t
             kw["changes"].append(ch.t)  # type: ignore[attr-defined]
@@ -228,7 +242,7 @@ def _change(t: Array | None, pts: Array, failure: str, *, model: str, norm: floa
     if t is None or len(t) != len(pts) or len(pts) < _MIN_POINTS:
         return None
     times = np.asarray(t, dtype=np.float64)
-    ch = locate_offset_change(times, pts)
+    ch = _locate(times, pts)
     if ch is None:
         return None
     before = times < ch.t

@@ -22,7 +22,6 @@ every gap.
 
 from __future__ import annotations
 
-import itertools
 import logging
 import math
 import warnings
@@ -30,7 +29,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.signal import savgol_filter
 
 from ..model.calibration import Calibration
 from ..model.errors import DegenerateDataError, InputError, MargCalError, as_points
@@ -38,8 +36,18 @@ from ..model.fitting import fit
 from ..sim.effects import check_effects, sensor_model
 from ..sim.simulation import simulate
 from .baseline_noise import ar1_noise, estimate_slow_noise, shaped_truth
-from .changes import OffsetChange, locate_offset_change, moving_mask
+from .changes import OffsetChange
 from .stages import StageFeatures, rest_noise, stage_features
+from .twin_fits import (
+    CHANGE_EVIDENCE,
+    MAX_ITER,
+    MIN_SAMPLES,
+    _change_message,
+    _closed_form_fits,
+    _located_change,
+    _segment_fits,
+    smooth_directions,
+)
 
 __all__ = [
     "CHANGE_EVIDENCE", "FIT_ERRORS", "MAX_STEP_DEG", "Baseline", "Twin", "build_twin", "mean_features",
@@ -54,44 +62,11 @@ FIT_ERRORS = (MargCalError, np.linalg.LinAlgError, ValueError, FloatingPointErro
 """What a twin simulation or fit may raise on odd data; caught so that a diagnosis always gives a verdict."""
 DEFAULT_N_FIT = 6000
 """Samples the fitting stages use (evenly spaced in time); the read-out stages use every sample."""
-MIN_SAMPLES = 50
-SMOOTH_WINDOW = 31
-"""Samples of the direction smoothing window (0.3 s at 100 Hz)."""
 MAX_STEP_DEG = 10.0
 """Median angle between consecutive samples above which a recording has no time continuity: its rest
 noise cannot be measured from second differences and its directions are not smoothed."""
-_MAX_ITER = 400
 _SHAPE_ITER = 200
-CHANGE_EVIDENCE = 0.3
-"""Share of the single fit's residual an offset change must remove beyond what the best split removes on
-the no-change twin (``_change_survives_twin``)."""
 _SLOW_TAU_SPREAD = 2.0
-_GUARD = 0.05
-"""Share of the moving span left out on either side of an offset change when its sides are fitted."""
-
-
-def smooth_directions(h: Array, window: int = SMOOTH_WINDOW, t: Array | None = None) -> Array:
-    """Unit directions of calibrated vectors ``h`` (n, 3), their noise smoothed out along time.
-
-    A Savitzky-Golay filter (quadratic, ``window`` samples) keeps the motion and removes most of the
-    noise: otherwise the twin would carry the recording's noise in its directions plus its own. With
-    times ``t``, stretches separated by a gap (more than 3 median steps, e.g. the moves an inactivity
-    gate removed) are smoothed separately.
-    """
-    h = np.array(h, dtype=np.float64)
-    n = h.shape[0]
-    cuts = [0, n]
-    if t is not None and n > 2:
-        dt = np.diff(t)
-        med = float(np.median(dt))
-        cuts = [0, *(np.flatnonzero(dt > 3 * med) + 1).tolist(), n] if med > 0 else cuts
-    for lo, hi in itertools.pairwise(cuts):
-        m = hi - lo
-        w = min(window, m if m % 2 else m - 1)
-        if w >= 5:
-            h[lo:hi] = savgol_filter(h[lo:hi], w, 2, axis=0, mode="interp")
-    lengths = np.linalg.norm(h, axis=1, keepdims=True)
-    return h / np.where(lengths > 0, lengths, 1.0)
 
 
 def median_step_deg(h: Array) -> float:
@@ -259,138 +234,6 @@ class Twin:
                 f"(rest noise {self.noise:.3g} of the field radius) do not make a usable twin")
 
 
-def _change_message(change: OffsetChange, exc: Exception) -> str:
-    return (f"the recording cannot be fitted ({exc}): it seems to contain an offset change at t \u2248 {change.t:.1f} s "
-            f"(a step of {change.step:.3g} raw units, {change.relative_step:.0%} of the field radius; a hard-iron "
-            "change such as a magnet attached or moved near the sensor), so no single calibration fits it; "
-            f"diagnose the parts before and after t \u2248 {change.t:.1f} s separately")
-
-
-def _side_fit(
-    times: Array, pts: Array, idx: NDArray[np.intp], norm: float | None, sensor: str, depth: int = 1,
-) -> tuple[Calibration, Calibration]:
-    """Best (``sym``, else ``diag``) and baseline (``diag``) fits of the samples ``idx``; when ``lm``
-    does not converge, those of the larger part around their own offset change (``depth`` more levels:
-    a magnet attached and removed again makes two changes), else the closed-form ``lin_auto`` fits
-    (a side that covers only part of the sphere)."""
-    try:
-        diag = fit(pts[idx], model="diag", method="lm", norm=norm, sensor=sensor, max_iter=_MAX_ITER)
-    except MargCalError:
-        inner = locate_offset_change(times[idx], pts[idx]) if depth > 0 else None
-        if inner is None:
-            diag = fit(pts[idx], model="diag", method="lin_auto", norm=norm, sensor=sensor)
-            try:
-                return fit(pts[idx], model="sym", method="lin_auto", norm=norm), diag
-            except MargCalError:
-                return diag, diag
-        ti = times[idx]
-        span = float(np.ptp(ti))
-        parts = [idx[ti < inner.t - _GUARD * span], idx[ti > inner.t + _GUARD * span]]
-        return _side_fit(times, pts, max(parts, key=len), norm, sensor, depth - 1)
-    try:
-        sym = fit(pts[idx], model="sym", method="lm", norm=norm, max_iter=_MAX_ITER)
-    except MargCalError:
-        sym = diag
-    return sym, diag
-
-
-def _located_change(
-    times: Array, pts: Array, sub: NDArray[np.intp], norm: float | None, sensor: str,
-) -> OffsetChange | None:
-    """The offset change of the subsample ``sub`` when one is located and beats the no-change twin."""
-    change = locate_offset_change(times[sub], pts[sub])
-    if change is not None and not _change_survives_twin(times, pts, sub, change, norm, sensor):
-        log.info("offset change at t = %.2f s rejected: the no-change twin splits as well", change.t)
-        return None
-    return change
-
-
-def _change_survives_twin(
-    times: Array, pts: Array, sub: NDArray[np.intp], change: OffsetChange, norm: float | None, sensor: str,
-) -> bool:
-    """Whether a located offset change beats the no-change twin: the recording's one-shape-two-centres
-    drop must exceed, by ``CHANGE_EVIDENCE``, the best split's drop on a twin simulated from one
-    closed-form fit of the whole recording (same directions, times and rest noise, no change). A split
-    that noise, the turning or the slow noise alone can make fails the test."""
-    try:
-        cal = fit(pts[sub], model="diag", method="lin_auto", norm=norm, sensor=sensor)
-    except MargCalError:
-        return True  # no twin to test against: the shared-shape evidence stands
-    ts = times[sub]
-    dirs = smooth_directions(cal.apply(pts[sub]), t=ts)
-    noise = rest_noise(pts) / cal.raw_radius
-    raw0 = simulate(cal, dirs, noise=noise, rng=np.random.default_rng(0), t=ts).raw
-    null = locate_offset_change(ts, raw0, min_drop=0.0, min_shared_drop=0.0)
-    null_drop = null.shared_drop if null is not None else 0.0
-    log.debug("offset change: shared drop %.3f against the no-change twin's %.3f", change.shared_drop, null_drop)
-    return change.shared_drop > null_drop + CHANGE_EVIDENCE
-
-
-def _closed_form_fits(
-    pts: Array, sub: NDArray[np.intp], norm: float | None, sensor: str, exc: Exception,
-) -> tuple[Calibration, Calibration, Array]:
-    """Best and baseline fits by the closed-form ``lin_auto`` (it always gives an answer on a recording
-    that turns), used when ``lm`` does not converge and no offset change explains why (a strong
-    non-ellipsoidal effect: clipping, a cubic non-linearity); the calibrated vectors of every sample.
-
-    Raises:
-        DegenerateDataError: the closed form fails too (e.g. a static recording).
-    """
-    try:
-        truth = fit(pts[sub], model="diag", method="lin_auto", norm=norm, sensor=sensor)
-    except MargCalError as exc2:
-        msg = (f"the recording cannot be fitted ({exc}; closed form: {exc2}); a diagnosis needs a recording that "
-               "turns the sensor through many directions (a static recording only gives rest noise and quantisation)")
-        raise DegenerateDataError(msg) from exc2
-    try:
-        best = fit(pts[sub], model="sym", method="lin_auto", norm=norm)
-    except MargCalError:
-        best = truth
-    log.info("lm does not converge (%s) and no offset change explains it: closed-form fits", exc)
-    return best, truth, best.apply(pts)
-
-
-def _segment_fits(
-    times: Array, pts: Array, sub: NDArray[np.intp], change: OffsetChange, norm: float | None, sensor: str,
-) -> tuple[Calibration, Calibration, Array]:
-    """Fits of the two sides of an offset change: the reference side's best and baseline fits, and the
-    calibrated vectors (n, 3) of every sample, each side with its own best fit.
-
-    The reference side is the one with more moving samples (``changes.moving_mask``); each side is
-    fitted on its moving samples of the subsample only (a still stretch adds one point, possibly with
-    the other offset if the change happened while still), leaving out ``_GUARD`` of the moving span on
-    either side of the change (``_side_fit``). When the other side cannot be fitted, its vectors use the
-    reference side's best fit moved to the other side's centre (``OffsetChange.offset_after``/``before``).
-
-    Raises:
-        MargCalError: the reference side cannot be fitted.
-    """
-    ts = times[sub]
-    moving = moving_mask(ts, pts[sub])
-    after = ts >= change.t
-    span = float(np.ptp(ts[moving])) if moving.any() else 0.0
-    clear = np.abs(ts - change.t) > _GUARD * span  # the change is located only roughly
-    masks = (~after, after)
-    ref = int(np.count_nonzero(after & moving) > np.count_nonzero(~after & moving))
-    cals: list[Calibration | None] = [None, None]
-    for k in (ref, 1 - ref):
-        idx = sub[masks[k] & moving & clear]
-        if idx.size < MIN_SAMPLES:
-            idx = sub[masks[k]]
-        if k == ref:
-            best, truth = _side_fit(times, pts, idx, norm, sensor)
-            cals[k] = best
-            continue
-        try:
-            cals[k] = _side_fit(times, pts, idx, norm, sensor)[0]
-        except MargCalError:
-            shift = change.offset_after - change.offset_before
-            cals[k] = best.replace(offset=best.offset + (shift if k == 1 else -shift))
-    cut = int(np.searchsorted(times, change.t))
-    h = np.vstack([cals[0].apply(pts[:cut]), cals[1].apply(pts[cut:])])  # type: ignore[union-attr]
-    return best, truth, h
-
-
 def build_twin(
     t: Array,
     raw: Array,
@@ -440,9 +283,9 @@ def build_twin(
     closed_form = False
     searched = False  # whether the offset change has been searched (it is searched once)
     try:
-        truth = fit(pts[sub], model="diag", method="lm", norm=norm, sensor=sensor, max_iter=_MAX_ITER)
+        truth = fit(pts[sub], model="diag", method="lm", norm=norm, sensor=sensor, max_iter=MAX_ITER)
         try:
-            best = fit(pts[sub], model="sym", method="lm", norm=norm, max_iter=_MAX_ITER)
+            best = fit(pts[sub], model="sym", method="lm", norm=norm, max_iter=MAX_ITER)
         except MargCalError as exc_sym:
             change, searched = _located_change(times, pts, sub, norm, sensor), True
             if change is not None:

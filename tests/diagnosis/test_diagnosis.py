@@ -287,6 +287,7 @@ def test_recording_no_single_fit_can_fit_is_diagnosed_as_a_jump() -> None:
 def test_unfittable_sides_say_where_the_offset_changes(monkeypatch: pytest.MonkeyPatch) -> None:
     """When neither the whole recording nor its sides can be fitted, the twin is the closed-form fit of
     the whole and the report gives the change's time and suggests diagnosing the parts separately."""
+    from ros_margcal.diagnosis import locate_offset_change
     from ros_margcal.diagnosis import twin as twin_module
     from ros_margcal.model.errors import ConvergenceError
 
@@ -295,7 +296,7 @@ def test_unfittable_sides_say_where_the_offset_changes(monkeypatch: pytest.Monke
 
     monkeypatch.setattr(twin_module, "_segment_fits", fail)
     rec, sigma = _stream({"hard_iron_jump": 0.9}, duration=60.0)
-    change = twin_module.locate_offset_change(rec.t, rec.raw)
+    change = locate_offset_change(rec.t, rec.raw)
     assert change is not None
     twin = build_twin(rec.t, rec.raw, sensor="mag", rest_noise_raw=sigma)
     assert twin.closed_form and twin.change is None
