@@ -24,7 +24,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 import multiprocessing
 import sys
@@ -32,17 +31,16 @@ import tempfile
 import time
 import traceback
 from pathlib import Path
-from types import ModuleType
 from typing import Any
 
 import numpy as np
+from study_ground_robot import independent_generator  # scripts/ is on the path when a script in it runs
 
 from ros_margcal.bench.diagnosis import _confusion_plot
 from ros_margcal.diagnosis import diagnose
 from ros_margcal.recordings.read import read_recording
 from ros_margcal.validation.shipped import load_default_validator
 
-GEN_PATH = Path(__file__).resolve().parents[1] / "tests" / "independent" / "generator.py"
 LABEL = {"none": "none", "soft_iron": "ellipsoid_shape", "nonlinearity": "nonlinearity", "temperature": "temperature",
          "saturation": "saturation", "quantization": "quantization", "bias_drift": "slow_drift",
          "misalignment": "none", "hard_iron_jump": "hard_iron_jump"}
@@ -57,15 +55,7 @@ SHAPE_TOLERANCE = 0.0
 """``--shape-tolerance``: cross-axis terms the diagnosis counts as the sensor's baseline (set by ``main``)."""
 
 
-def _generator() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("margcal_independent_generator", GEN_PATH)
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-GEN = _generator()
+GEN = independent_generator()
 
 
 def jobs(part: str, duration: float) -> list[tuple[str, str, float, str, int, float]]:

@@ -27,7 +27,7 @@ import sys
 from typing import Any
 
 import numpy as np
-from study_ground_robot import _generator  # scripts/ is on the path when a script in it runs
+from study_ground_robot import independent_generator  # scripts/ is on the path when a script in it runs
 
 from ros_margcal.stream.calibrator import EventKind, PipelineConfig, SensorCalibrator
 
@@ -173,7 +173,7 @@ def main(argv: list[str] | None = None) -> int:
     for item in args.set:
         name, value = item.split("=", 1)
         OVERRIDES[name] = value == "true" if value in ("true", "false") else (int(value) if value.isdigit() else float(value))
-    gen = _generator()
+    gen = independent_generator()
     if args.only in (None, "ground"):
         ground(gen, args.quick, args.seconds)
     if args.only in (None, "rich"):

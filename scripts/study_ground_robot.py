@@ -16,6 +16,7 @@ import argparse
 import importlib.util
 import sys
 from pathlib import Path
+from types import ModuleType
 
 import numpy as np
 
@@ -26,7 +27,8 @@ TUNING = (1, 2, 3, 11, 12, 13)
 HELD_OUT = tuple(range(100, 110))
 
 
-def _generator():
+def independent_generator() -> ModuleType:
+    """tests/independent/generator.py, loaded by path (the scripts share this loader)."""
     path = Path(__file__).resolve().parents[1] / "tests" / "independent" / "generator.py"
     spec = importlib.util.spec_from_file_location("margcal_independent_generator", path)
     if spec is None or spec.loader is None:
@@ -61,7 +63,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seconds", type=float, default=300.0, help="recording length (default 300 s of turning)")
     p.add_argument("--quick", action="store_true", help="three held-out seeds only")
     args = p.parse_args(argv)
-    gen = _generator()
+    gen = independent_generator()
     groups = {"tuning": TUNING, "held-out": HELD_OUT[:3] if args.quick else HELD_OUT}
     print(f"{'seeds':9s} {'tilt':>4s}  {'level p95 meas/pred (median)':>29s}  {'30deg p95 meas/pred (median)':>29s}  "
           f"{'worst level':>11s}  {'pred/meas level':>15s}  {'offset xy':>9s}")

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import importlib.util
+import sys
+from collections.abc import Callable
 from pathlib import Path
 from types import ModuleType
 
@@ -35,17 +37,32 @@ def real_data_dir() -> Path:
     return REAL_DATA
 
 
+@pytest.fixture
+def real_recording(real_data_dir: Path) -> Callable[[str], Path]:
+    """``real_recording(name)``: the path of one real recording; the test is skipped when it is absent."""
+
+    def path(name: str) -> Path:
+        p = real_data_dir / name
+        if not p.exists():
+            pytest.skip(f"{name} not present in {real_data_dir}")
+        return p
+
+    return path
+
+
 def _load_independent() -> ModuleType:
     spec = importlib.util.spec_from_file_location("margcal_independent_generator",
                                                   Path(__file__).with_name("independent") / "generator.py")
     assert spec is not None and spec.loader is not None
     module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # test modules import it by this name: one loader, one module object
     spec.loader.exec_module(module)
     return module
 
 
 INDEPENDENT = _load_independent()
-"""``tests/independent/generator.py``: recordings made without any code of the package."""
+"""``tests/independent/generator.py`` (importable as ``margcal_independent_generator`` in tests): recordings
+made without any code of the package."""
 
 
 @pytest.fixture

@@ -34,7 +34,7 @@ from ..model.errors import ConvergenceError, DegenerateDataError, InputError
 from ..model.fitting import fit
 from ..model.fitting_prior import PriorFit, broad_prior, fit_with_prior
 from ..model.heading import heading_p95
-from ..stream.config import STATIC_SPREAD, PipelineConfig, plausibility
+from ..stream.config import STATIC_SPREAD, PipelineConfig, plausibility, relative_spread
 
 __all__ = ["STATIC_SPREAD", "Part", "Rescue", "check", "config_for", "heading_text", "rescue"]
 
@@ -108,12 +108,6 @@ def residual_note(cal: Calibration, cfg: PipelineConfig | None) -> str:
             "one calibration does not explain the recording")
 
 
-def _spread(points: Array) -> float:
-    mean = points.mean(axis=0)
-    scale = float(np.median(np.linalg.norm(points, axis=1))) or 1.0
-    return float(np.sqrt(np.mean(np.sum((points - mean) ** 2, axis=1)))) / scale
-
-
 def _norm_guess(points: Array) -> float:
     """A field norm for the prior: the algebraic sphere fit's radius, else the half-extent of the data."""
     centred = points - points.mean(axis=0)
@@ -168,7 +162,7 @@ def _segment(t: Array, points: Array, label: str, depth: int, kw: dict[str, obje
     n = len(points)
     unit = str(kw["unit"])
     stamp = float(t[-1]) if len(t) else 0.0
-    spread = _spread(points) if n else 0.0
+    spread = relative_spread(points) if n else 0.0
     if n < _MIN_POINTS or spread < STATIC_SPREAD:
         return [Part(label, None, n, note=f"static ({100 * spread:.2g} % spread): no calibration")]
     cfg = kw["cfg"]
@@ -213,7 +207,7 @@ def rescue(t: Array | None, points: Array, *, failure: str, model: str, norm: fl
     if len(pts) < _MIN_POINTS:
         reason = f"only {len(pts)} samples: too few for any calibration (need {_MIN_POINTS})"
         return Rescue("too few", reason, lines=[f"requested fit: {failure}", reason])
-    spread = _spread(pts)
+    spread = relative_spread(pts)
     if spread < STATIC_SPREAD:
         level = float(np.median(np.linalg.norm(pts, axis=1)))
         reason = (f"static recording: the {len(pts)} readings stay within {100 * spread:.2g} % of their mean "

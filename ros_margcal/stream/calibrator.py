@@ -67,7 +67,7 @@ from ..model.calibration import Calibration
 from ..model.errors import ConfigError
 from ..validation.shipped import default_validator
 from .change import ChangeDetection
-from .config import STATIC_SPREAD, PipelineConfig
+from .config import STATIC_SPREAD, PipelineConfig, relative_spread
 from .evaluation import Evaluation
 from .intake import DROP_REASONS, Intake
 from .status import Event, EventKind, Level, State, Status, pct
@@ -309,8 +309,7 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         pts = np.array(self._recent_v, dtype=np.float64).reshape(-1, 3)
         if len(pts) < self.config.change_window:
             return ""
-        level = float(np.median(np.linalg.norm(pts, axis=1)))
-        spread = float(np.sqrt(np.mean(np.sum((pts - pts.mean(axis=0)) ** 2, axis=1)))) / max(level, 1e-300)
+        spread = relative_spread(pts)
         if spread >= STATIC_SPREAD:
             return ""
         return (f"; the sensor has not turned: the last {len(pts)} samples stay within {pct(spread)} of their mean "

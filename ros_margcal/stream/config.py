@@ -42,13 +42,19 @@ from ..model.fitting import LOSSES, METHODS, SUPPORTED
 from .units import ACCEL_UNITS, GRAVITY, LEARN_SAMPLES, MAG_UNITS, unit_scale
 
 __all__ = ["ACCEL_UNITS", "FIELD_SPECS", "GRAVITY", "MAG_UNITS", "STATIC_SPREAD", "FieldSpec", "PipelineConfig", "guard_rails",
-           "plausibility", "rms_relative"]
+           "plausibility", "relative_spread", "rms_relative"]
 
 EARTH_FIELD_RANGE_T = (20e-6, 70e-6)
 """Plausible geomagnetic field strength, tesla."""
 STATIC_SPREAD = 0.03
 """RMS distance of readings from their mean, over their mean norm, below which the sensor has not turned
 (an HMC5883L at rest: 0.2 %; a full turn with an offset of 10 field norms: about 10 %)."""
+
+
+def relative_spread(points: NDArray[np.float64]) -> float:
+    """RMS distance of ``points`` (n, 3) from their mean over their median norm (compare ``STATIC_SPREAD``)."""
+    scale = float(np.median(np.linalg.norm(points, axis=1))) or 1.0
+    return float(np.sqrt(np.mean(np.sum((points - points.mean(axis=0)) ** 2, axis=1)))) / scale
 MAX_OFFSET_T = 1e-3
 """Default absolute magnetometer offset limit, tesla (20 Earth fields; ArduPilot: 1 800 mG = 180 µT)."""
 

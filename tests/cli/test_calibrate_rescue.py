@@ -7,6 +7,7 @@ Recordings from the independent generator (``tests/independent``), in µT, and t
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from pathlib import Path
 from types import ModuleType
 
@@ -93,32 +94,26 @@ def test_no_rescue_keeps_the_error(independent: ModuleType, tmp_path: Path, caps
     assert "did not converge" in capsys.readouterr().err
 
 
-def _real(real_data_dir: Path, name: str) -> Path:
-    path = real_data_dir / name
-    if not path.exists():
-        pytest.skip(f"{name} not present")
-    return path
 
-
-def test_real_hemisphere_is_fitted_with_the_prior(real_data_dir: Path, tmp_path: Path,
+def test_real_hemisphere_is_fitted_with_the_prior(real_recording: Callable[[str], Path], tmp_path: Path,
                                                   capsys: pytest.CaptureFixture[str]) -> None:
     """The real one-hemisphere LSM9DS1 set: lm does not converge; the prior fit reports and stays plausible."""
-    path = _real(real_data_dir, "hamagure_lsm9ds1_hemisphere_mag.csv")
+    path = real_recording("hamagure_lsm9ds1_hemisphere_mag.csv")
     rc, text, out = _calibrate(path, tmp_path, capsys, "--unit", "gauss")
     assert rc == 0 and "partial coverage" in text
     d = json.loads(out.read_text())
     assert d["method"] == "map" and d["stats"]["rms_relative"] < 0.02
 
 
-def test_real_static_recording_is_refused(real_data_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_real_static_recording_is_refused(real_recording: Callable[[str], Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """The 10-minute static HMC5883L log: refused with the reason."""
-    rc, text, _ = _calibrate(_real(real_data_dir, "sunsided_hmc5883l_static_10min_mag.csv"), tmp_path, capsys, "--unit", "gauss")
+    rc, text, _ = _calibrate(real_recording("sunsided_hmc5883l_static_10min_mag.csv"), tmp_path, capsys, "--unit", "gauss")
     assert rc == 3 and "static recording" in text
 
 
-def test_real_attached_magnet_is_located(real_data_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_real_attached_magnet_is_located(real_recording: Callable[[str], Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """BROAD 32 (a magnet 1 cm away in mid-recording): the change is located and several calibrations fitted."""
-    rc, text, out = _calibrate(_real(real_data_dir, "broad_32_disturbed_attached_magnet_1cm_mag.csv"), tmp_path, capsys, "--unit", "uT")
+    rc, text, out = _calibrate(real_recording("broad_32_disturbed_attached_magnet_1cm_mag.csv"), tmp_path, capsys, "--unit", "uT")
     assert rc == 0 and "the offset changed at t = " in text
     parts = json.loads(out.read_text())["calibrations"]
     assert len(parts) >= 2

@@ -2,17 +2,9 @@
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
+import margcal_independent_generator as gen  # loaded once by tests/conftest.py
 import numpy as np
 import pytest
-
-_SPEC = importlib.util.spec_from_file_location("margcal_independent_generator", Path(__file__).with_name("generator.py"))
-gen = importlib.util.module_from_spec(_SPEC)
-sys.modules[_SPEC.name] = gen
-_SPEC.loader.exec_module(gen)
 
 
 def _cal_norms(rec, offset=None):

@@ -11,24 +11,16 @@ Timing targets belong in ``margcal bench pipeline``, not here.
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 import threading
-from pathlib import Path
 from typing import Any
 
+import margcal_independent_generator as gen  # loaded once by tests/conftest.py
 import numpy as np
 import pytest
 
 import ros_margcal.stream.evaluation as calibrator_module
 from ros_margcal.sim import simulation as sim
 from ros_margcal.stream.calibrator import EventKind, PipelineConfig, SensorCalibrator
-
-_SPEC = importlib.util.spec_from_file_location("margcal_independent_generator",
-                                               Path(__file__).parents[1] / "independent" / "generator.py")
-gen = importlib.util.module_from_spec(_SPEC)
-sys.modules.setdefault(_SPEC.name, gen)
-_SPEC.loader.exec_module(gen)
 
 
 class CountingValidator:

@@ -6,6 +6,7 @@ the real recordings of ``../shared/data/real`` are used where present (skipped c
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 from types import ModuleType
 
@@ -121,22 +122,18 @@ MAG_FILES = {  # file -> raw unit (README of the real recordings)
 
 
 @pytest.mark.parametrize("name", sorted(MAG_FILES))
-def test_real_full_sphere_recordings_calibrate_in_their_unit(real_data_dir: Path, name: str) -> None:
+def test_real_full_sphere_recordings_calibrate_in_their_unit(real_recording: Callable[[str], Path], name: str) -> None:
     """Real full-sphere recordings calibrate when replayed in their own unit (counts included)."""
-    path = real_data_dir / name
-    if not path.exists():
-        pytest.skip(f"{name} not present")
+    path = real_recording(name)
     out = replay(path, sensor="mag", unit=MAG_FILES[name], status_every=0.0, progress=False)
     cal = out["calibrators"]["mag"]
     assert cal.state is State.CALIBRATED, cal.status().message
     assert cal.dropped["magnitude"] == 0
 
 
-def test_real_counts_read_as_tesla_say_why(real_data_dir: Path) -> None:
+def test_real_counts_read_as_tesla_say_why(real_recording: Callable[[str], Path]) -> None:
     """The counts logger replayed without --unit: every sample dropped, and the status says |v|, limit, hint."""
-    path = real_data_dir / "fhoevi_full_sphere_mag.csv"
-    if not path.exists():
-        pytest.skip("fhoevi_full_sphere_mag.csv not present")
+    path = real_recording("fhoevi_full_sphere_mag.csv")
     out = replay(path, sensor="mag", status_every=0.0, progress=False)
     st = out["calibrators"]["mag"].status()
     assert st.samples_passed == 0
