@@ -236,19 +236,26 @@ class DirectionBuffer:
         Never raises for bad samples: non-finite values or a wrong shape are counted as invalid, a
         sample at the centre or in a bin that took one less than ``min_interval_s`` ago is refused.
         """
-        self._offered += 1
         try:
             x = float(xyz[0])  # type: ignore[index]
             y = float(xyz[1])  # type: ignore[index]
             z = float(xyz[2])  # type: ignore[index]
             t = float(t)
         except (TypeError, ValueError, IndexError):
+            self._offered += 1
             self._invalid += 1
             return False
         s = x + y + z + t
         if s - s != 0.0:  # NaN or Inf somewhere
+            self._offered += 1
             self._invalid += 1
             return False
+        return self.push_finite(t, x, y, z)
+
+    def push_finite(self, t: float, x: float, y: float, z: float) -> bool:
+        """``push`` for a caller that already checked the sample: four finite Python floats (the calibrator's
+        intake did); return True if it was kept."""
+        self._offered += 1
         cx, cy, cz = self._center
         dx, dy, dz = x - cx, y - cy, z - cz
         r = math.sqrt(dx * dx + dy * dy + dz * dz)

@@ -65,7 +65,8 @@ from .calibration import Calibration, FitStats
 from .errors import ConvergenceError, DegenerateDataError, InputError, as_points
 from .fitting_core import mad_sigma, pack, parameter_names, resjac, unpack
 
-__all__ = ["BROAD_MATRIX_STD", "BROAD_OFFSET_STD", "UPDATED_VARIANCE_RATIO", "PriorFit", "broad_prior", "fit_with_prior"]
+__all__ = ["BROAD_MATRIX_STD", "BROAD_OFFSET_STD", "UPDATED_VARIANCE_RATIO", "PriorFit", "broad_prior", "fit_with_prior",
+           "posterior_at"]
 
 Array = NDArray[np.float64]
 
@@ -291,3 +292,24 @@ def _solve(z: Array, start: Array, theta0: Array, chol: Array, n: float, sigma: 
     r = _geometric(z, theta, n)[0] / s
     dp = chol @ (theta - theta0)
     return float(r @ r + dp @ dp), theta, s, iters
+
+
+def posterior_at(points: ArrayLike, cal: Calibration, prior: Calibration, *, sigma: float | None = None) -> Calibration:
+    """``cal`` with the posterior covariance of the MAP problem linearised at ``cal`` (its symmetric part, at
+    its norm): ``P = (J^T J / sigma^2 + P_0^-1)^-1`` from one Jacobian, no iteration. For a calibration
+    another fit found (the full path's) whose value is kept and whose heading error is wanted; on data
+    that determine every parameter it equals the covariance ``fit_with_prior`` would attach.
+
+    Raises:
+        InputError: bad points or prior; DegenerateDataError: fewer than 3 points.
+    """
+    pts = as_points(points, "points")
+    if len(pts) < 3:
+        msg = f"need at least 3 points, got {len(pts)}"
+        raise DegenerateDataError(msg)
+    _, info0 = _prior_parts(prior, 1.0)
+    theta = pack(np.asarray(cal.offset, dtype=np.float64), np.asarray(cal.matrix, dtype=np.float64), "sym")
+    r, jt = _geometric(np.ascontiguousarray(pts.T), theta, float(cal.norm))
+    s = sigma if sigma is not None else max(mad_sigma(r), _MIN_SIGMA_REL * prior.raw_radius)
+    post = np.linalg.inv(jt @ jt.T / (s * s) + info0)
+    return cal.replace(covariance=0.5 * (post + post.T), parameter_names=NAMES)

@@ -32,8 +32,12 @@ _NAMES = parameter_names("sym", scale_free=False)
 
 
 def attitudes(tilt_deg: float, n_yaw: int = 72) -> Array:
-    """Rotation matrices body -> world (K, 3, 3) over a yaw grid, roll and pitch in {-tilt, 0, tilt}."""
+    """Rotation matrices body -> world (K, 3, 3) over a yaw grid, roll and pitch in {-tilt, 0, tilt}
+    (``R = R_z(yaw) R_y(pitch) R_x(roll)``, roll outermost, then pitch, then yaw)."""
     yaw = np.linspace(0.0, 2.0 * math.pi, n_yaw, endpoint=False)
+    cy, sy = np.cos(yaw), np.sin(yaw)
+    rz = np.zeros((n_yaw, 3, 3))
+    rz[:, 0, 0], rz[:, 0, 1], rz[:, 1, 0], rz[:, 1, 1], rz[:, 2, 2] = cy, -sy, sy, cy, 1.0
     tilts = [0.0] if tilt_deg == 0 else [-math.radians(tilt_deg), 0.0, math.radians(tilt_deg)]
     out = []
     for r in tilts:
@@ -41,11 +45,8 @@ def attitudes(tilt_deg: float, n_yaw: int = 72) -> Array:
             cr, sr, cp, sp = math.cos(r), math.sin(r), math.cos(p), math.sin(p)
             rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
             ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
-            for y in yaw:
-                cy, sy = math.cos(y), math.sin(y)
-                rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
-                out.append(rz @ ry @ rx)
-    return np.array(out)
+            out.append(rz @ (ry @ rx))
+    return np.concatenate(out)
 
 
 def inclination_deg(cal: Calibration, raw: Array, gravity_body: Array | None = None) -> float:

@@ -205,7 +205,9 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         if len(self._recent_v):
             r = np.abs(cal.norm_error(np.array(self._recent_v))) / cal.norm
             self._recent_r = deque(r.tolist(), maxlen=self.config.recent_samples)
-        self._buffer.set_center(cal.offset, cal.raw_radius)
+        old = self._buffer.center  # a move within CENTER_MOVE_TOLERANCE keeps the bins (no re-binning)
+        near = float(np.linalg.norm(cal.offset - old)) <= self.CENTER_MOVE_TOLERANCE * cal.raw_radius
+        self._buffer.set_center(old if near else cal.offset, cal.raw_radius)
 
     # -- the sample path --------------------------------------------------------------------------
 
@@ -278,9 +280,11 @@ class SensorCalibrator(ChangeDetection, Evaluation):
                 self.dropped["outlier"] += 1
                 return events
         self.passed += 1
-        if self._buffer.push(t, (x, y, z)):
+        if self._buffer.push_finite(t, x, y, z):
             self.kept += 1
         self._since_eval += 1
+        if self._since_eval < (cfg.refit_every // 2 or 1):  # the cadence never asks for fewer (a cheap test first)
+            return events
         every, interval = self._cadence()
         if self._since_eval >= every and t - self._last_eval_t >= interval:
             events += self._evaluate(t, force=False)

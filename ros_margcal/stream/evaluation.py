@@ -7,7 +7,8 @@ the centre update and the validator under the caller's lock, the fit on a snapsh
 result installed under it again, a fit whose data went stale meanwhile dropped. An evaluation on
 materially unchanged data (same bins, nearly the same buffer size and recent residual) is skipped with
 an exponential back-off, so a robot that never covers more directions does not pay for the same
-refusal over and over.
+refusal over and over. The buffer is re-binned about a new centre estimate only when the centre moved
+significantly (``_center_moved``): a ring's sphere fit leaves its axial component to the noise.
 
 It uses the calibrator's state (``_buffer``, ``_cal``, ``config``, ``validator``, the recent samples)
 and its helpers ``_install``, ``_set_state`` and ``_recent_points``.
@@ -51,6 +52,11 @@ class Evaluation(PartialCalibration):
     """First back-off on unchanged data, s (or the cadence interval if longer); it doubles per repeat ..."""
     SKIP_MAX_WAIT_S = 120.0
     """... up to this, s (or the cadence interval if longer)."""
+    CENTER_MOVE_TOLERANCE = 0.002
+    """A centre estimate that moved less than this share of the radius keeps the old centre (the radius is
+    still updated): a 0.2 % move turns a direction by < 0.12 deg, far below a bin's ~20 deg ..."""
+    CENTER_MOVE_SIGMAS = 3.0
+    """... as does one within this many standard errors of the sphere fit along the move (``_center_moved``)."""
     defer_evaluation: bool = False
     """False (replay, offline): a due evaluation (centre, validator, fit) runs inside ``push``. True (the
     node): ``push`` only records it and ``run_pending`` runs it, e.g. on a worker thread, so the
@@ -147,11 +153,35 @@ class Evaluation(PartialCalibration):
             return
         # centre and radius from a linear sphere fit (cheap); the LM fit refines it later
         a = np.c_[2.0 * pts, np.ones(len(pts))]
-        sol, *_ = np.linalg.lstsq(a, (pts * pts).sum(axis=1), rcond=None)
+        y = (pts * pts).sum(axis=1)
+        sol, *_ = np.linalg.lstsq(a, y, rcond=None)
         c = sol[:3]
         rad2 = sol[3] + c @ c
-        if np.isfinite(c).all() and np.isfinite(rad2) and rad2 > 0:
-            self._buffer.set_center(c, math.sqrt(rad2))
+        if not (np.isfinite(c).all() and np.isfinite(rad2) and rad2 > 0):
+            return
+        rad = math.sqrt(rad2)
+        old = self._buffer.center
+        if self._buffer.radius is not None and not self._center_moved(a, y - a @ sol, c - old, rad):
+            c = old  # keep the bins: re-binning costs ~2 ms at 1000 samples and would change nothing real
+        self._buffer.set_center(c, rad)
+
+    def _center_moved(self, a: Array, res: Array, step: Array, rad: float) -> bool:
+        """The sphere fit's centre moved by ``step``: by more than ``CENTER_MOVE_TOLERANCE`` of the radius and
+        by more than ``CENTER_MOVE_SIGMAS`` standard errors of the fit along the step (a ring leaves the
+        centre's axial component to the noise: it must not re-bin the buffer at every evaluation)."""
+        dist = float(np.linalg.norm(step))
+        if dist <= self.CENTER_MOVE_TOLERANCE * rad:
+            return False
+        dof = len(res) - 4
+        if dof <= 0:
+            return True
+        try:
+            cov = np.linalg.inv(a.T @ a)[:3, :3] * float(res @ res) / dof
+        except np.linalg.LinAlgError:
+            return False  # the data do not determine a centre: keep the one the bins use
+        u = step / dist
+        var = float(u @ cov @ u)
+        return not (math.isfinite(var) and dist * dist <= self.CENTER_MOVE_SIGMAS**2 * var)
 
     def _evaluate(self, t: float, *, force: bool) -> list[Event]:
         """A due (``force``: a requested) evaluation: skipped on unchanged data, recorded when deferring."""

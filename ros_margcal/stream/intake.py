@@ -74,6 +74,11 @@ def _real(v: Any) -> float | None:
 
 def _vector3(v: Any) -> Vec3 | None:
     """``v`` as three floats, or None when it is not three real numbers (never raises)."""
+    tv = type(v)
+    if (tv is list or tv is tuple) and len(v) == 3:  # the common case first: three Python floats
+        x, y, z = v
+        if type(x) is float and type(y) is float and type(z) is float:
+            return x, y, z
     try:
         if isinstance(v, np.ndarray):
             if v.size != 3:
@@ -176,8 +181,14 @@ class Intake:
             return "bad_stamp"
         mag = math.sqrt(x * x + y * y + z * z)
         cfg = self.config
-        learning = self.learning
-        lo, hi = (0.0, cfg.max_magnitude) if learning else self.limits
+        learnt = self._learnt
+        learning = learnt is None and cfg.learn_magnitude_samples > 0
+        if learning:
+            lo, hi = 0.0, cfg.max_magnitude
+        elif learnt is not None:
+            lo, hi = learnt[1], learnt[2]
+        else:
+            lo, hi = cfg.min_magnitude, cfg.max_magnitude
         if mag <= lo:
             self.last_magnitude = mag
             return "zero"

@@ -13,9 +13,10 @@ matrix std ``0.1``). The data are a time series of the magnetometer decimated to
 buffer keeps only ``per_bin`` samples per bin, ~170 on a ring, too few to average the noise; in time
 order, the fit's covariance allows for coloured noise. The field norm is ``reference_norm`` when
 configured, else the prior's, else the radius of a linear sphere fit to the series; the MAP fit holds it
-fixed, so an estimated norm adds its own uncertainty (``NORM_REL_STD``, 5 %) to the covariance: the
-difference of a fit at ``1.05`` times the norm (matrix rescaled) as one more error direction, which on a
-ring falls on the vertical offset. The information
+fixed, so on a ring or band an estimated norm adds its own uncertainty (``NORM_REL_STD``, 5 %) to the
+covariance: the difference of a fit at ``1.05`` times the norm (matrix rescaled) as one more error
+direction, which on a ring falls on the vertical offset (rich data fix the offset whatever the norm: no
+second fit there). The information
 matrix tells which parameter directions the data determine: a parameter whose posterior variance fell
 below a quarter of its prior variance is *updated*, the others *come from the prior* (their value
 and uncertainty). A yaw-only robot thus gets its horizontal hard iron and 2-D soft iron from turning
@@ -31,7 +32,8 @@ replaces: the prior-held parameters are uncertain by construction) pass, and the
 (tilt seen at most ``partial_max_tilt_deg``, 45° by default: richer motion is the full path's) turned
 about the body z axis (the calibrated field visits at least ``partial_min_azimuth`` of 36 azimuth
 sectors, 90 % by default): the heading figures assume z up, and a cap about another axis (a sensor
-waved about one pose) would be judged at the wrong attitudes.
+waved about one pose) would be judged at the wrong attitudes. These cheap checks come first: a fit they
+refuse costs no norm-uncertainty fit and no heading figures.
 
 **Early fit on rich motion** (``early_fit``). Before the first calibration, the same MAP fit on richer
 data (a tumble's first seconds, on the recent samples while the series is short) is
@@ -50,7 +52,8 @@ poses seen determine (a level ground robot: the z offset and gain); it is never 
 heading figure judges it.
 
 **Full calibrations.** ``heading_figures`` gives the same two figures for a calibration of the full
-path (``fitting.fit``): a MAP fit from the broad prior on the buffer at the fit's own norm supplies a
+path (``fitting.fit``): the MAP problem from the broad prior on the buffer at the fit's own norm,
+linearised at the full fit (``fitting_prior.posterior_at``: one Jacobian, no second fit), supplies a
 covariance over the symmetric parameters (the published calibration is the full fit's, unchanged).
 """
 
@@ -65,7 +68,7 @@ from numpy.typing import NDArray
 from ..model.calibration import Calibration
 from ..model.errors import MargCalError
 from ..model.fitting_core import parameter_names
-from ..model.fitting_prior import broad_prior, fit_with_prior
+from ..model.fitting_prior import broad_prior, fit_with_prior, posterior_at
 from ..model.heading import heading_p95, inclination_deg
 from .config import PipelineConfig, guard_rails
 
@@ -102,6 +105,8 @@ class PartialResult:
         tilt_seen_deg: the tilt range of the data; heading_seen_deg: the predicted heading p95 there.
         figures: level and ±30° figures.
         reason: why it must not be published ("" when it may).
+        over_limit: the refusal was the predicted heading error above this limit (degrees), else None.
+        azimuth: share of the azimuth sectors the calibrated field visited (nan when not computed).
     """
 
     calibration: Calibration | None
@@ -112,6 +117,8 @@ class PartialResult:
     heading_seen_deg: float
     figures: HeadingFigures | None
     reason: str
+    over_limit: float | None = None
+    azimuth: float = math.nan
 
 
 def sphere_radius(points: Array) -> float:
@@ -167,8 +174,7 @@ def heading_figures(cal: Calibration, points: Array, cfg: PipelineConfig) -> tup
     try:
         cov_cal = cal
         if cal.covariance is None or tuple(cal.parameter_names) != SYM_NAMES:
-            post = fit_with_prior(points, broad_prior(points, cal.norm)).calibration
-            cov_cal = cal.replace(covariance=post.covariance, parameter_names=SYM_NAMES)
+            cov_cal = posterior_at(points, cal, broad_prior(points, cal.norm))
         return _figures(cov_cal, float(cfg.heading_inclination_deg or DEFAULT_INCLINATION_DEG)), cov_cal
     except (MargCalError, ValueError, ArithmeticError):
         return None
@@ -193,8 +199,6 @@ def partial_fit(series: Array, prior: Calibration | None, cfg: PipelineConfig, *
             inflate = cfg.prior_inflate
         pf = fit_with_prior(series, prior, inflate=inflate, stamp=stamp, time_ordered=True)
         cal = pf.calibration
-        if sensor == "mag" and not cfg.reference_norm and kind == "broad":
-            cal = _with_norm_uncertainty(cal, series, prior, inflate, stamp)
         if sensor != "mag":
             return PartialResult(cal, pf.updated, pf.from_prior, kind, math.nan, math.inf, None,
                                  f"partial fit (not published for the {sensor}): the poses seen determine "
@@ -202,22 +206,32 @@ def partial_fit(series: Array, prior: Calibration | None, cfg: PipelineConfig, *
                                  f"{', '.join(pf.from_prior) or 'none'} need more poses")
         tilt = tilt_seen_deg(cal, series)
         rich = not tilt <= cfg.partial_max_tilt_deg
+        # the cheap verdicts first: a fit they refuse needs no norm uncertainty and no heading figures
+        if rich and not (cfg.early_fit and current is None):
+            return PartialResult(cal, pf.updated, pf.from_prior, kind, tilt, math.inf, None,
+                                 f"partial fit: the data are tilted up to {tilt:.0f} deg > {cfg.partial_max_tilt_deg:g} "
+                                 "deg, not a ring or band: the full path decides")
+        azimuth = azimuth_coverage(cal, series)
+        if not rich and not azimuth >= cfg.partial_min_azimuth:
+            return PartialResult(cal, pf.updated, pf.from_prior, kind, tilt, math.inf, None,
+                                 f"partial fit: the field turned through {100 * azimuth:.0f} % of the azimuths about the "
+                                 f"body z axis < {100 * cfg.partial_min_azimuth:.0f} %: not a ground robot's turns",
+                                 azimuth=azimuth)
+        if not cfg.reference_norm and kind == "broad" and not rich:
+            # a ring's vertical offset follows the norm it is given; rich data fix the offset whatever the
+            # norm (a wrong norm only rescales the matrix, which no heading sees): no second fit there
+            cal = _with_norm_uncertainty(cal, series, prior, inflate, stamp)
         inc = _inclination(cfg, cal, None if rich else series)  # "z up on average" holds for a ring, not a tumble
         figs = _figures(cal, inc)
         seen = figs.tilt30_deg if rich else heading_p95(cal, tilt_deg=tilt, inclination=inc)
     except (MargCalError, ValueError, ArithmeticError) as exc:
         return PartialResult(None, (), SYM_NAMES, kind, math.nan, math.inf, None, f"partial fit failed: {exc}")
     limit = cfg.early_heading_p95_deg if rich else cfg.max_heading_p95_deg
-    reason = ""
-    if rich and not (cfg.early_fit and current is None):
-        reason = (f"partial fit: the data are tilted up to {tilt:.0f} deg > {cfg.partial_max_tilt_deg:g} deg, not a "
-                  "ring or band: the full path decides")
-    elif not rich and not azimuth_coverage(cal, series) >= cfg.partial_min_azimuth:
-        reason = (f"partial fit: the field turned through {100 * azimuth_coverage(cal, series):.0f} % of the azimuths "
-                  f"about the body z axis < {100 * cfg.partial_min_azimuth:.0f} %: not a ground robot's turns")
-    elif not seen <= limit:
+    reason, over = "", None
+    if not seen <= limit:
         where = "at 30 deg tilt" if rich else f"at the tilt seen ({tilt:.1f} deg)"
         reason = f"partial fit: predicted heading error {seen:.2f} deg p95 {where} > {limit:g} deg"
+        over = limit
     elif current_heading is not None and not seen < current_heading:
         reason = (f"partial refit: predicted heading error {seen:.2f} deg p95 not below the current "
                   f"calibration's {current_heading:.2f} deg")
@@ -228,4 +242,4 @@ def partial_fit(series: Array, prior: Calibration | None, cfg: PipelineConfig, *
                             None if current_heading is not None else current)
         if rails:
             reason = f"partial fit: {rails}"
-    return PartialResult(cal, pf.updated, pf.from_prior, kind, tilt, seen, figs, reason)
+    return PartialResult(cal, pf.updated, pf.from_prior, kind, tilt, seen, figs, reason, over, azimuth)

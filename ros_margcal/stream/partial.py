@@ -11,9 +11,11 @@ estimate and the decision live in ``observable`` (see its docstring). Here:
 - the early fit on rich motion (``observable``): before the first calibration, on the recent samples
   (``recent_samples``, all of them while uncalibrated) while the series is shorter than ``min_points``;
 - when a partial fit is due: the full validator refused, ``partial_fit`` is on, there is no
-  calibration, a sensor change is pending, or the current one is partial; and the series grew by a
-  quarter (``PARTIAL_GROWTH``) since the last attempt, which overrides the skip rule's back-off (a
-  ground robot's buffer stops changing, its series does not);
+  calibration, a sensor change is pending, or the current one is partial; and the series grew since
+  the last attempt by a quarter (``PARTIAL_GROWTH``), or by what that attempt's refusal asks for (up to
+  doubling, ``PARTIAL_GROWTH_MAX``: a heading error 3x its limit or a third of the azimuths turned
+  through is not retried after a few more samples), which overrides the skip rule's back-off (a ground
+  robot's buffer stops changing, its series does not);
 - the status fields: ``partial``, ``updated_parameters``, ``prior_parameters``, the predicted heading
   p95 level and at ±30° (also for a full magnetometer calibration), the tilt seen.
 
@@ -48,7 +50,14 @@ class PartialCalibration:
     evaluation cadence is ``early_interval_s`` and half ``refit_every``: the stopping rule is the
     covariance's, checked often while it is about to pass."""
     PARTIAL_GROWTH = 0.25
-    """A new partial fit is due once the series received this share of its length in new samples."""
+    """A new partial fit is due once the series received this share of its length in new samples ..."""
+    PARTIAL_GROWTH_MAX = 1.0
+    """... or, after a fit refused on its predicted heading error ``h`` > limit ``L``, the share ``h / L - 1``
+    (clipped to [PARTIAL_GROWTH, this]) at which an error falling as 1/samples would pass (it falls as
+    1/sqrt(samples) at worst; on a ground robot about as 1/samples, as turns and tilt wobble add up); after
+    one refused on the azimuths turned through, ``a`` < ``A``, the share ``A / a - 1`` (turning adds azimuths
+    about linearly in time). A fit far from passing is not retried after a few more samples (each costs
+    tens of ms)."""
     sensor: str
     config: PipelineConfig
     _cal: Calibration | None
@@ -61,11 +70,13 @@ class PartialCalibration:
         self._series_t = -math.inf
         self._series_count = 0
         self._series_at_attempt = -1
+        self._series_len_at_attempt = 0
         self._partial: PartialResult | None = None  # the last accepted partial fit (its status fields)
         self._partial_note = ""  # why the last partial fit was not published
         self._figures: HeadingFigures | None = None
         self._prior: Calibration | None = None
         self._early_close = False  # the last early fit's predicted heading error was within EARLY_CLOSE x its limit
+        self._partial_growth = self.PARTIAL_GROWTH  # share of the series to wait for before the next partial fit
 
     def _cadence(self) -> tuple[int, float]:
         """(samples, seconds) between evaluations: ``recheck_interval_s`` while calibrated by the full
@@ -86,6 +97,12 @@ class PartialCalibration:
         cfg = self.config
         limit = max(cfg.early_heading_p95_deg, cfg.max_heading_p95_deg)
         self._early_close = res is not None and res.heading_seen_deg <= self.EARLY_CLOSE * limit
+        grow = self.PARTIAL_GROWTH
+        if res is not None and res.over_limit and math.isfinite(res.heading_seen_deg):
+            grow = res.heading_seen_deg / res.over_limit - 1.0
+        elif res is not None and 0.0 < res.azimuth < cfg.partial_min_azimuth:
+            grow = cfg.partial_min_azimuth / res.azimuth - 1.0  # turning adds azimuths about linearly in time
+        self._partial_growth = min(max(grow, self.PARTIAL_GROWTH), self.PARTIAL_GROWTH_MAX)
 
     def _series_push(self, t: float, x: float, y: float, z: float) -> None:
         if t - self._series_t < self.config.partial_period_s - 1e-6:  # 1 us: stamps through sec/nanosec
@@ -106,11 +123,12 @@ class PartialCalibration:
         if not (self._cal is None or self._changed or self._partial is not None):
             return False
         grown = self._series_count - self._series_at_attempt
-        return self._series_at_attempt < 0 or grown >= self.PARTIAL_GROWTH * len(self._series)
+        return self._series_at_attempt < 0 or grown >= max(1, self._partial_growth * self._series_len_at_attempt)
 
     def _partial_job(self, job: dict[str, Any]) -> dict[str, Any]:
         """Turn a fit job into a partial one (the series and the prior join the snapshot)."""
         self._series_at_attempt = self._series_count
+        self._series_len_at_attempt = len(self._series)
         cur = self._partial if (self._cal is not None and not self._changed) else None
         series = self._series_points()
         if len(series) < self.config.min_points:  # early: the recent samples until the series is long enough
@@ -136,6 +154,7 @@ class PartialCalibration:
         if job.get("partial"):
             res: PartialResult = job["result"]
             self._partial, self._partial_note = res, ""
+            self._partial_growth = self.PARTIAL_GROWTH
             self._figures = res.figures
             return (f"; partial: updated {','.join(res.updated) or 'none'}, from the {res.prior_kind} prior "
                     f"{','.join(res.from_prior) or 'none'}; heading p95 {res.heading_seen_deg:.2f} deg at the tilt seen "
