@@ -57,7 +57,8 @@ class PartialCalibration:
     1/sqrt(samples) at worst; on a ground robot about as 1/samples, as turns and tilt wobble add up); after
     one refused on the azimuths turned through, ``a`` < ``A``, the share ``A / a - 1`` (turning adds azimuths
     about linearly in time). A fit far from passing is not retried after a few more samples (each costs
-    tens of ms)."""
+    tens of ms). Early fits (the first seconds, on the recent samples) keep the quarter: a tumble's
+    coverage, and with it the heading figure, improves much faster than that."""
     sensor: str
     config: PipelineConfig
     _cal: Calibration | None
@@ -97,8 +98,10 @@ class PartialCalibration:
         cfg = self.config
         limit = max(cfg.early_heading_p95_deg, cfg.max_heading_p95_deg)
         self._early_close = res is not None and res.heading_seen_deg <= self.EARLY_CLOSE * limit
-        grow = self.PARTIAL_GROWTH
-        if res is not None and res.over_limit and math.isfinite(res.heading_seen_deg):
+        grow = self.PARTIAL_GROWTH  # early fits (recent samples, first seconds): coverage grows fast there
+        if job.get("early"):
+            pass
+        elif res is not None and res.over_limit and math.isfinite(res.heading_seen_deg):
             grow = res.heading_seen_deg / res.over_limit - 1.0
         elif res is not None and 0.0 < res.azimuth < cfg.partial_min_azimuth:
             grow = cfg.partial_min_azimuth / res.azimuth - 1.0  # turning adds azimuths about linearly in time
@@ -131,9 +134,10 @@ class PartialCalibration:
         self._series_len_at_attempt = len(self._series)
         cur = self._partial if (self._cal is not None and not self._changed) else None
         series = self._series_points()
-        if len(series) < self.config.min_points:  # early: the recent samples until the series is long enough
+        early = len(series) < self.config.min_points
+        if early:  # the recent samples until the series is long enough
             series = np.array(self._recent_v, dtype=np.float64).reshape(-1, 3)
-        return {**job, "partial": True, "series": series, "prior": self._prior,
+        return {**job, "partial": True, "series": series, "prior": self._prior, "early": early,
                 "current_heading": None if cur is None else cur.heading_seen_deg}
 
     def _partial_compute(self, job: dict[str, Any]) -> tuple[Calibration | None, str]:
