@@ -119,7 +119,7 @@ class PipelineConfig:
     # partial calibration (stream/observable.py)
     partial_fit: bool = True  # magnetometer: fit what the motion makes observable when the full validator refuses
     max_heading_p95_deg: float = 2.5  # publish a partial fit when its predicted heading p95 at the tilt seen is within
-    partial_period_s: float = 0.2  # one sample of the partial fit's time series per this many seconds ...
+    partial_period_s: float = 0.2  # one sample (their mean) of the partial fit's time series per this many seconds ...
     partial_samples: int = 1500  # ... the last this many (300 s at the defaults)
     partial_max_tilt_deg: float = 45.0  # a partial fit only for a ring or band: data tilted at most this much
     partial_min_azimuth: float = 0.9  # ... turned about body z: share of 36 azimuth sectors the field visits

@@ -8,7 +8,7 @@ fit) predicts an error of ~100 % and the plain fit is never run. This module is 
 a prior. The prior is the last *full* calibration the calibrator accepted (or loaded), with its
 covariance inflated by ``prior_inflate`` so the data can move it; without one, the documented broad
 prior of ``fitting_prior.broad_prior`` (zero offset, identity matrix, offset std ``5`` field norms,
-matrix std ``0.1``). The data are a time series of the magnetometer decimated to one sample per
+matrix std ``0.1``). The data are a time series of the magnetometer averaged down to one sample per
 ``partial_period_s`` (the last ``partial_samples`` of them, 300 s at the defaults): the direction
 buffer keeps only ``per_bin`` samples per bin, ~170 on a ring, too few to average the noise; in time
 order, the fit's covariance allows for coloured noise. The field norm is ``reference_norm`` when

@@ -4,8 +4,8 @@
 estimate and the decision live in ``observable`` (see its docstring). Here:
 
 - the decimated time series of the samples that reach the buffer stage (the accelerometer's: the
-  gate's still means) (one sample per ``partial_period_s``, the last
-  ``partial_samples``), fed from the sample path;
+  gate's still means): the mean of each ``partial_period_s``, the last ``partial_samples`` of them,
+  fed from the sample path;
 - the prior: the last *full* calibration accepted or loaded (with a covariance over the symmetric
   parameters; a full fit gets one from ``observable.heading_figures``), else the broad prior;
 - the early fit on rich motion (``observable``): before the first calibration, on the recent samples
@@ -69,6 +69,7 @@ class PartialCalibration:
         cfg = self.config
         self._series: deque[tuple[float, float, float]] = deque(maxlen=cfg.partial_samples)
         self._series_t = -math.inf
+        self._series_acc = [0.0, 0.0, 0.0, 0.0]  # sums of x, y, z and the count since the last series sample
         self._series_count = 0
         self._series_at_attempt = -1
         self._series_len_at_attempt = 0
@@ -108,10 +109,19 @@ class PartialCalibration:
         self._partial_growth = min(max(grow, self.PARTIAL_GROWTH), self.PARTIAL_GROWTH_MAX)
 
     def _series_push(self, t: float, x: float, y: float, z: float) -> None:
+        """One more sample: the series receives the mean of the samples of each ``partial_period_s``
+        (averaging, not picking every k-th, divides the white noise by sqrt(k))."""
+        acc = self._series_acc
+        acc[0] += x
+        acc[1] += y
+        acc[2] += z
+        acc[3] += 1.0
         if t - self._series_t < self.config.partial_period_s - 1e-6:  # 1 us: stamps through sec/nanosec
             return
         self._series_t = t
-        self._series.append((x, y, z))
+        k = acc[3]
+        self._series.append((acc[0] / k, acc[1] / k, acc[2] / k))
+        self._series_acc = [0.0, 0.0, 0.0, 0.0]
         self._series_count += 1
 
     def _series_points(self) -> Array:
