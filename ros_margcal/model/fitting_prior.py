@@ -6,7 +6,8 @@ least-squares fit of the 9-parameter model (``fitting.fit``) is then ill-posed a
 fit starts from what is already known and updates only what the data determine.
 
 **Model.** ``theta = (b_x, b_y, b_z, w_xx, w_yy, w_zz, w_xy, w_xz, w_yz)`` (``fitting_core``'s symmetric
-parameter vector) with the reference norm ``n`` fixed, and the *geometric* residual
+parameter vector) with the reference norm ``n`` (fixed unless ``norm_rel_std``, below), and the *geometric*
+residual
 
     r_i(theta) = (|W d_i| - n) / |W u_i|,   d_i = v_i - b,  u_i = W d_i / |W d_i|,
 
@@ -22,12 +23,22 @@ so its norm residuals are far below the noise), while the geometric residual can
     S(theta) = sum_i r_i(theta)^2 / sigma^2 + (theta - theta_0)^T P_0^-1 (theta - theta_0),
 
 solved as the stacked least-squares problem ``[r / sigma; L^T (theta - theta_0)]`` (``L L^T = P_0^-1``)
-by MINPACK's Levenberg-Marquardt (scipy), with the Jacobian ``J_i = (dr_i^norm / d theta) / |W u_i|``
-(the gradient's own change is second order at the solution), from the prior and from the centres of a
-sphere of the prior's radius through the data (two on a ring, where the vertical centre is fixed by the
-norm only up to its sign); the lowest posterior cost wins. ``sigma`` is re-estimated from the residuals
-(MAD) between solves unless given. The posterior covariance is ``P = H^-1`` with
-``H = J^T J / sigma^2 + P_0^-1`` at the solution (the information form of the Gauss-Newton step).
+by MINPACK's Levenberg-Marquardt (scipy) with the *exact* Jacobian of ``r``: writing ``y = W d``, ``q = W y``,
+``r = (|y| - n) |y| / |q|`` and ``dr = alpha (y . dy) - beta (q . dq)`` with ``alpha = (2|y| - n) / (|y| |q|)``,
+``beta = r / |q|^2``. (Dropping the derivative of ``1 / |W u|`` is not harmless: LM then stops where
+``J^T r = 0`` for the wrong ``J``, an ``O(sigma^2)`` bias per point that does not average out; on a ring it
+moved the weakly determined terms by several sigmas, more the more points.) Starts: the prior and the
+centres of a sphere of the prior's radius through the data (two on a ring, where the vertical centre is
+fixed by the norm only up to its sign); the lowest posterior cost wins, every start judged at the lowest
+sigma found. ``sigma`` is re-estimated from the residuals (MAD) between solves unless given. The
+posterior covariance is ``P = H^-1`` with ``H = J^T J / sigma^2 + P_0^-1`` at the solution (the information
+form of the Gauss-Newton step).
+
+**Norm.** By default ``n`` is the prior's and held fixed. With ``norm_rel_std > 0`` it is a tenth parameter
+with the prior ``N(prior.norm, (norm_rel_std prior.norm)^2)``, estimated with the others
+(``dr / dn = -|y| / |q|``); the returned calibration has the estimated norm and the covariance of the nine
+parameters marginal over it: the data reduce the norm's uncertainty where they determine it (a tumble,
+a steep band) and leave the prior's on a ring, where the vertical offset follows the norm.
 
 **What was updated.** For each parameter the data's share of the information is
 ``1 - P_kk / P0_kk``; a parameter whose posterior variance fell below ``UPDATED_VARIANCE_RATIO`` of its
@@ -35,21 +46,31 @@ prior variance (its standard deviation at least halved) counts as *updated*, the
 prior*: they keep the prior's value up to the coupling with the updated ones, and its uncertainty.
 
 **Coloured noise.** Real sensors drift slowly (1/f noise); the weakly determined terms (the vertical
-offset of near-level data) soak it up, and a white-noise covariance then understates their error several
-times. For points in time order (``time_ordered=True``) the data information is the Newey-West
-(heteroscedasticity and autocorrelation consistent) sandwich ``I_d = A S^-1 A`` with ``A = J^T J`` and
-``S = sum_l w_l sum_i J_i r_i r_(i+l) J_(i+l)^T`` (Bartlett weights ``w_l = 1 - l / (L + 1)``, ``L`` the lag
-at which the residual autocorrelation falls below 0.05): a direction fed by fast changes (yaw) keeps its
-information, one fed by slow changes (tilt) loses what the slow noise can fake. The posterior is then
-``(I_d + P_0^-1)^-1``. ``scripts/study_ground_robot.py`` measures how well the result predicts the heading
-error on the independent generator.
+cross terms of near-level data, fed by slow tilt) soak it up, and a white-noise covariance then understates
+their error. For points in time order (``time_ordered=True``) the residual noise is modelled as white plus
+AR(1), autocorrelation ``rho_l = c phi^l`` (``l >= 1``; ``c`` the coloured share of the variance), fitted
+(log-linear) to the residuals' sample autocorrelation over the lags where it is at least 0.1 (none: white).
+The data information is then the sandwich ``I_d = A B^-1 A`` with ``A = J^T J`` and ``B = J^T Sigma J``,
+``Sigma_ij = s^2 ((1 - c) delta_ij + c phi^|i-j|)`` (``s^2`` the residual variance; ``Sigma J`` by one
+forward and one backward AR(1) filter): a direction fed by fast changes (yaw) keeps its information, one fed
+by slow changes (tilt) loses what the slow noise can fake. (The Newey-West estimate used before counts the
+same from the scores ``J_i r_i`` themselves, which sum to about zero at the solution: its variance fell
+as its bandwidth grew and it was optimistic on slow noise.) The posterior is ``(I_d + P_0^-1)^-1``.
+Averaging the samples down to the series' rate (rather than keeping every k-th) divides the white part
+by ``sqrt(k)`` and leaves the slow part, which this model then accounts for.
+``scripts/study_ground_robot.py`` measures how well the result predicts the heading error on the
+independent generator.
 
 **Prior.** The last accepted calibration with its covariance (inflated by ``inflate`` so the data can
 move it), or, with none, ``broad_prior``: zero offset and identity matrix scaled to the data's mean
 radius, with standard deviations ``BROAD_OFFSET_STD`` times the norm for the offset and
-``BROAD_MATRIX_STD`` (relative) for the matrix entries: wide enough for any real hard and soft iron
-(ArduPilot accepts offsets up to 1 800 mG, about 4 field norms), narrow enough to keep the unobserved
-directions finite.
+``BROAD_MATRIX_STD`` (relative) for the matrix entries. The offset's is a bound, not a measurement: wide
+enough for any real hard iron (ArduPilot accepts offsets up to 1 800 mG, about 4 field norms). The
+matrix's 0.1 is likewise a bound chosen, not measured (no survey of real soft iron backs a narrower
+figure here): one sigma of 10 % soft iron, scale and cross-axis error together, and it is not fitted to
+any generator. It keeps the unobserved directions finite, and where the data leave them to it (the vertical terms of a
+ring) the predicted error at tilts not seen is this bound's: conservative when the real soft iron is a
+few per cent (the ground-robot study: the heading error at +-30 deg is about half its predicted sigma).
 """
 
 from __future__ import annotations
@@ -59,7 +80,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.optimize import least_squares
+from scipy.signal import lfilter
 
 from .calibration import Calibration, FitStats
 from .errors import ConvergenceError, DegenerateDataError, InputError, as_points
@@ -78,6 +99,15 @@ BROAD_MATRIX_STD = 0.1
 UPDATED_VARIANCE_RATIO = 0.25
 """A parameter is *updated* by the data when its posterior variance is below this share of the prior's."""
 _MIN_SIGMA_REL = 1e-6
+_LM_FTOL = 1e-9
+_LM_XTOL = 1e-10
+_LM_LAM_MAX = 1e12
+_OFF_J, _OFF_K = [0, 0, 1], [1, 2, 2]  # (x, y), (x, z), (y, z): the off-diagonal entries of W
+_NOISE_RHO_MIN = 0.1
+"""The residual autocorrelation below which a lag is not used to fit the coloured noise."""
+_MAX_NOISE_LAG = 400
+_PHI_MAX = 0.995
+_C_MAX = 0.99
 
 
 @dataclass(frozen=True)
@@ -92,6 +122,8 @@ class PriorFit:
         data_share: per parameter, ``1 - posterior variance / prior variance`` (0: prior only, 1: data only).
         sigma: the residual noise used to weigh the data against the prior.
         iterations: Levenberg-Marquardt iterations.
+        residual_sigma: the noise of the residuals at the solution (MAD): ``sigma`` when it was estimated;
+            with a given ``sigma``, the check that it still fits the data (and the next fit's ``sigma``).
     """
 
     calibration: Calibration
@@ -101,6 +133,7 @@ class PriorFit:
     data_share: dict[str, float]
     sigma: float
     iterations: int
+    residual_sigma: float = math.nan
 
     @property
     def partial(self) -> bool:
@@ -145,20 +178,26 @@ def _prior_parts(prior: Calibration, inflate: float) -> tuple[Array, Array]:
 
 
 def fit_with_prior(points: ArrayLike, prior: Calibration, *, sigma: float | None = None, inflate: float = 1.0,
-                   max_iter: int = 200, stamp: float = 0.0, time_ordered: bool = False) -> PriorFit:
+                   max_iter: int = 200, stamp: float = 0.0, time_ordered: bool = False,
+                   norm_rel_std: float = 0.0) -> PriorFit:
     """MAP fit of the symmetric model to ``points`` (N, 3) given a prior calibration (module docstring).
 
     Args:
         points: raw readings.
         prior: the prior, with a covariance over the sym parameters (``broad_prior`` or a previous fit).
-        sigma: noise std of the raw readings, raw units (None: estimated from the residuals, MAD).
+        sigma: noise std of the raw readings, raw units (None: estimated from the residuals, MAD, between
+            three solves per start; given, one solve per start: a stream's previous fit on the same kind of
+            data knows it, and the estimate barely depends on it).
         inflate: factor on the prior covariance (> 1 lets the data move an old calibration further).
         max_iter: Levenberg-Marquardt iterations at most per solve.
         stamp: the stamp of the returned calibration.
         time_ordered: the points are a time series: the covariance allows for coloured noise.
+        norm_rel_std: relative standard deviation of ``prior.norm`` (0, the default: the norm is known and held
+            fixed); above 0 the norm is a tenth parameter with that prior, estimated with the others, and the
+            covariance is marginal over it (module docstring).
 
     Raises:
-        InputError: bad points or prior; DegenerateDataError: fewer than 3 points;
+        InputError: bad points, prior or argument; DegenerateDataError: fewer than 3 points;
         ConvergenceError: no start led to a finite solution.
     """
     pts = as_points(points, "points")
@@ -168,35 +207,42 @@ def fit_with_prior(points: ArrayLike, prior: Calibration, *, sigma: float | None
     if not (math.isfinite(inflate) and inflate > 0):
         msg = f"inflate must be a positive finite number, got {inflate!r}"
         raise InputError(msg)
+    if not (math.isfinite(norm_rel_std) and norm_rel_std >= 0):
+        msg = f"norm_rel_std must be a non-negative finite number, got {norm_rel_std!r}"
+        raise InputError(msg)
     if sigma is not None and not (math.isfinite(sigma) and sigma > 0):
         msg = f"sigma must be a positive finite number, got {sigma!r}"
         raise InputError(msg)
-    n = float(prior.norm)
+    n0 = float(prior.norm)
     theta0, info0 = _prior_parts(prior, inflate)
+    if norm_rel_std > 0:  # the norm joins the parameters: theta = (b, W entries, n)
+        theta0 = np.r_[theta0, n0]
+        info0 = np.pad(info0, (0, 1))
+        info0[9, 9] = 1.0 / (norm_rel_std * n0) ** 2
     chol = np.linalg.cholesky(info0).T  # chol^T chol = P_0^-1
     z = np.ascontiguousarray(pts.T)
     floor = _MIN_SIGMA_REL * prior.raw_radius
-    best: tuple[float, Array, float, int] | None = None
+    sols = []
     for start in _starts(pts, theta0, prior.raw_radius):
         try:
-            sol = _solve(z, start, theta0, chol, n, sigma, floor, max_iter)
+            sols.append(_solve(z, start, theta0, info0, n0, sigma, floor, max_iter))
         except (np.linalg.LinAlgError, ValueError, FloatingPointError):
             continue
-        if best is None or sol[0] < best[0]:
-            best = sol
-    if best is None:
+    if not sols:
         msg = "MAP fit found no finite solution from any start"
         raise ConvergenceError(msg)
-    _, theta, s, iters = best
-    r, jt = _geometric(z, theta, n)
-    data_info = _hac_information(jt, r) if time_ordered else jt @ jt.T / (s * s)
-    post = np.linalg.inv(data_info + info0)
+    s_ref = min(sol[1] for sol in sols)  # every start judged under one noise level: the lowest
+    theta, s, iters = min(sols, key=lambda sol: _cost(z, sol[0], theta0, chol, n0, s_ref))
+    r, jt = _geometric(z, theta, n0)
+    data_info = _coloured_information(jt, r) if time_ordered else jt @ jt.T / (s * s)
+    post = np.linalg.inv(data_info + info0)[:9, :9]
     post = 0.5 * (post + post.T)
-    prior_var = np.diag(np.linalg.inv(info0))
+    prior_var = np.diag(np.linalg.inv(info0))[:9]
     share = 1.0 - np.clip(np.diag(post) / prior_var, 0.0, 1.0)
     updated = tuple(nm for nm, sh in zip(NAMES, share, strict=True) if sh >= 1.0 - UPDATED_VARIANCE_RATIO)
-    b, mat = unpack(theta, "sym")
-    rn, _ = resjac(z, theta, "sym", n)
+    n = float(theta[9]) if theta.size == 10 else n0
+    b, mat = unpack(theta[:9], "sym")
+    rn, _ = resjac(z, theta[:9], "sym", n)
     rms = float(np.sqrt(np.mean(rn * rn)))
     stats = FitStats(n_points=len(pts), rms=rms, rms_relative=rms / n, max_abs=float(np.max(np.abs(rn))),
                      iterations=iters, converged=True, cost=float(np.sum(r * r)))
@@ -204,36 +250,70 @@ def fit_with_prior(points: ArrayLike, prior: Calibration, *, sigma: float | None
                       covariance=post, parameter_names=NAMES, stamp=stamp)
     return PriorFit(calibration=cal, prior=prior, updated=updated,
                     from_prior=tuple(nm for nm in NAMES if nm not in updated),
-                    data_share=dict(zip(NAMES, share.tolist(), strict=True)), sigma=s, iterations=iters)
+                    data_share=dict(zip(NAMES, share.tolist(), strict=True)), sigma=s, iterations=iters,
+                    residual_sigma=s if sigma is None else max(mad_sigma(r), floor))
 
 
 def _geometric(z: Array, theta: Array, n: float) -> tuple[Array, Array]:
-    """Geometric residuals (raw units) and their transposed Jacobian (9, N) (module docstring)."""
-    r, jt = resjac(z, theta, "sym", n)
-    b, mat = unpack(theta, "sym")
-    y = mat @ (z - b[:, None])
-    u = y / np.maximum(np.sqrt(np.einsum("in,in->n", y, y)), 1e-300)
-    g = 1.0 / np.maximum(np.sqrt(np.einsum("in,in->n", mat @ u, mat @ u)), 1e-300)
-    return r * g, jt * g
+    """Geometric residuals (raw units) and their exact transposed Jacobian (P, N) (module docstring); a tenth
+    parameter is the norm (which then replaces ``n``)."""
+    b, mat = unpack(theta[:9], "sym")
+    if theta.size == 10:
+        n = float(theta[9])
+    d = z - b[:, None]
+    y = mat @ d  # W d
+    q = mat @ y  # W^2 d: |W u| = |q| / |y|
+    a = mat @ q
+    rho = np.sqrt(np.einsum("in,in->n", y, y))
+    qn = np.maximum(np.sqrt(np.einsum("in,in->n", q, q)), 1e-300)
+    r = (rho - n) * rho / qn
+    alpha = (2.0 * rho - n) / (np.maximum(rho, 1e-300) * qn)  # dr = alpha (y . dy) - beta (q . dq)
+    beta = r / (qn * qn)
+    jt = np.empty((theta.size, z.shape[1]))
+    jt[:3] = beta * (mat @ a) - alpha * q
+    jt[3:6] = alpha * y * d - beta * (q * y + a * d)
+    jk, kk = _OFF_J, _OFF_K
+    jt[6:9] = (alpha * (y[jk] * d[kk] + y[kk] * d[jk])
+               - beta * (q[jk] * y[kk] + q[kk] * y[jk] + a[jk] * d[kk] + a[kk] * d[jk]))
+    if theta.size == 10:
+        jt[9] = -rho / qn
+    return r, jt
 
 
-def _hac_information(jt: Array, r: Array) -> Array:
-    """Newey-West data information ``A S^-1 A`` of time-ordered residuals (module docstring)."""
-    a = jt @ jt.T
+def _noise_model(r: Array) -> tuple[float, float] | None:
+    """White plus AR(1) noise fitted to the residuals' autocorrelation ``rho_l = c phi^l`` (module docstring):
+    ``(c, phi)``, or None when the residuals look white."""
     rc = r - r.mean()
-    var = float(rc @ rc)
-    lag = 0
-    if var > 0:
-        for k in range(1, max(1, len(r) // 10)):
-            if float(rc[:-k] @ rc[k:]) / var < 0.05:
-                break
-            lag = k
-    g = jt * r  # score contributions, (P, N)
-    s = g @ g.T
-    for k in range(1, lag + 1):
-        c = g[:, :-k] @ g[:, k:].T
-        s += (1.0 - k / (lag + 1.0)) * (c + c.T)
-    return a @ np.linalg.solve(s, a)
+    m = len(rc)
+    max_lag = min(m // 10, _MAX_NOISE_LAG)
+    if max_lag < 2:
+        return None
+    f = np.fft.rfft(rc, 2 * m)
+    acf = np.fft.irfft(f * np.conj(f), 2 * m)[: max_lag + 1]
+    if not acf[0] > 0:
+        return None
+    rho = acf[1:] / acf[0]
+    if rho[0] < _NOISE_RHO_MIN or rho[1] <= 0:
+        return None
+    below = np.flatnonzero(rho < _NOISE_RHO_MIN)
+    lags = np.arange(1, max(int(below[0]) if below.size else max_lag, 2) + 1)
+    slope, icpt = np.polyfit(lags, np.log(np.maximum(rho[: lags.size], 1e-6)), 1)
+    return float(min(math.exp(icpt), _C_MAX)), float(min(math.exp(slope), _PHI_MAX))
+
+
+def _coloured_information(jt: Array, r: Array) -> Array:
+    """Data information ``A B^-1 A`` of time-ordered residuals under the white plus AR(1) noise fitted to them:
+    ``A = J^T J``, ``B = J^T Sigma J``, ``Sigma_ij = s^2 ((1 - c) delta_ij + c phi^|i-j|)`` (module docstring)."""
+    a = jt @ jt.T
+    var = float(np.mean((r - r.mean()) ** 2))
+    model = _noise_model(r)
+    if model is None:
+        return a / var
+    c, phi = model
+    fwd = lfilter([1.0], [1.0, -phi], jt, axis=-1)  # sum_(j <= i) phi^(i-j) J_j
+    bwd = lfilter([1.0], [1.0, -phi], jt[:, ::-1], axis=-1)[:, ::-1]  # sum_(j >= i)
+    b = var * ((1.0 - c) * a + c * (jt @ (fwd + bwd - jt).T))
+    return a @ np.linalg.solve(0.5 * (b + b.T), a)
 
 
 def _starts(pts: Array, theta0: Array, radius: float) -> list[Array]:
@@ -266,32 +346,74 @@ def _sphere_centres(pts: Array, radius: float) -> list[Array]:
     return [x0[:3] + t * w[:3] for t in ts]
 
 
-def _solve(z: Array, start: Array, theta0: Array, chol: Array, n: float, sigma: float | None, floor: float,
-           max_iter: int) -> tuple[float, Array, float, int]:
-    """One MAP solve from ``start`` (sigma re-estimated between rounds unless given): cost, theta, sigma, nfev."""
+def _solve(z: Array, start: Array, theta0: Array, info0: Array, n: float, sigma: float | None, floor: float,
+           max_iter: int) -> tuple[Array, float, int]:
+    """One MAP solve from ``start`` (sigma re-estimated between rounds unless given): theta, sigma, evaluations."""
     theta, iters = start.copy(), 0
     s = sigma
     for _ in range(1 if sigma is not None else 3):
         if sigma is None:
             s = max(mad_sigma(_geometric(z, theta, n)[0]), floor)
         assert s is not None
-        sc = s
-
-        def fun(th: Array, sc: float = sc) -> Array:
-            return np.r_[_geometric(z, th, n)[0] / sc, chol @ (th - theta0)]
-
-        def jac(th: Array, sc: float = sc) -> Array:
-            return np.vstack([_geometric(z, th, n)[1].T / sc, chol])
-
-        res = least_squares(fun, theta, jac=jac, method="lm", xtol=1e-10, ftol=1e-10, max_nfev=max_iter)
-        theta, iters = res.x, iters + int(res.nfev)
+        theta, k = _lm(z, theta, theta0, info0, n, s, max_iter)
+        iters += k
         if not np.all(np.isfinite(theta)):
             msg = "non-finite solution"
             raise ValueError(msg)
     assert s is not None
+    return theta, s, iters
+
+
+def _lm(z: Array, theta: Array, theta0: Array, info0: Array, n: float, s: float, max_iter: int) -> tuple[Array, int]:
+    """Levenberg-Marquardt on ``S(theta)`` through its normal equations: ``(H + lam diag H) step = -g`` with
+    ``H = J^T J / s^2 + P_0^-1`` (10 x 10 at most), one residual-and-Jacobian evaluation per trial; stops when a
+    step lowers (or its quadratic model promises to lower) ``S`` by less than ``_LM_FTOL`` of it, or moves
+    ``theta`` by less than ``_LM_XTOL`` of its size.
+    (MINPACK's QR of the stacked (N + P) x P system did the same work at ~5x the cost.)"""
+    w = 1.0 / (s * s)
+    r, jt = _geometric(z, theta, n)
+    dp = theta - theta0
+    cost = w * float(r @ r) + float(dp @ info0 @ dp)
+    lam, evals = 1e-3, 1
+    h = g = None
+    while evals < max_iter:
+        if h is None:
+            h = w * (jt @ jt.T) + info0
+            g = w * (jt @ r) + info0 @ dp
+        assert g is not None
+        try:
+            step = -np.linalg.solve(h + lam * np.diag(np.diag(h)), g)
+        except np.linalg.LinAlgError:
+            lam *= 10.0
+            if lam > _LM_LAM_MAX:
+                break
+            continue
+        if -2.0 * float(g @ step) - float(step @ h @ step) <= _LM_FTOL * cost or \
+                float(np.linalg.norm(step)) <= _LM_XTOL * (float(np.linalg.norm(theta)) + _LM_XTOL):
+            break  # the quadratic model promises (next to) nothing: converged, no evaluation spent on it
+        cand = theta + step
+        r2, jt2 = _geometric(z, cand, n)
+        evals += 1
+        dp2 = cand - theta0
+        cost2 = w * float(r2 @ r2) + float(dp2 @ info0 @ dp2)
+        if math.isfinite(cost2) and cost2 < cost:
+            done = cost - cost2 <= _LM_FTOL * cost
+            theta, r, jt, dp, cost, h = cand, r2, jt2, dp2, cost2, None
+            lam = max(lam / 3.0, 1e-12)
+            if done:
+                break
+        else:
+            lam *= 4.0
+            if lam > _LM_LAM_MAX:
+                break
+    return theta, evals
+
+
+def _cost(z: Array, theta: Array, theta0: Array, chol: Array, n: float, s: float) -> float:
+    """The posterior cost ``S(theta)`` at noise ``s``."""
     r = _geometric(z, theta, n)[0] / s
     dp = chol @ (theta - theta0)
-    return float(r @ r + dp @ dp), theta, s, iters
+    return float(r @ r + dp @ dp)
 
 
 def posterior_at(points: ArrayLike, cal: Calibration, prior: Calibration, *, sigma: float | None = None) -> Calibration:

@@ -12,11 +12,11 @@ matrix std ``0.1``). The data are a time series of the magnetometer averaged dow
 ``partial_period_s`` (the last ``partial_samples`` of them, 300 s at the defaults): the direction
 buffer keeps only ``per_bin`` samples per bin, ~170 on a ring, too few to average the noise; in time
 order, the fit's covariance allows for coloured noise. The field norm is ``reference_norm`` when
-configured, else the prior's, else the radius of a linear sphere fit to the series; the MAP fit holds it
-fixed, so on a ring or band an estimated norm adds its own uncertainty (``NORM_REL_STD``, 5 %) to the
-covariance: the difference of a fit at ``1.05`` times the norm (matrix rescaled) as one more error
-direction, which on a ring falls on the vertical offset (rich data fix the offset whatever the norm: no
-second fit there). The information
+configured, else the prior's, else the radius of a linear sphere fit to the series. A configured or
+prior norm is held fixed; one estimated from the series is a tenth parameter of the MAP fit with a prior
+sd of ``NORM_REL_STD`` (5 %, ``fit_with_prior(norm_rel_std=...)``): the data narrow it where they determine
+it (a tumble, a steep band) and leave it on a ring, where the vertical offset follows the norm, and the
+covariance of the nine parameters is marginal over it (the published calibration carries the estimated norm). The information
 matrix tells which parameter directions the data determine: a parameter whose posterior variance fell
 below a quarter of its prior variance is *updated*, the others *come from the prior* (their value
 and uncertainty). A yaw-only robot thus gets its horizontal hard iron and 2-D soft iron from turning
@@ -81,6 +81,8 @@ SYM_NAMES = parameter_names("sym", scale_free=False)
 NORM_REL_STD = 0.05
 """Relative std of a field norm estimated from partial data (the sphere through a band; 3-15 % off on
 the independent generator's ground robot at 60 s, within 5 % at 300 s)."""
+SIGMA_REUSE_TOLERANCE = 0.3
+"""A previous fit's noise is kept when the residuals at the new solution agree with it within this share."""
 DEFAULT_INCLINATION_DEG = 60.0
 """Field inclination assumed for the heading figures of a full calibration (mid latitudes) unless configured."""
 
@@ -107,6 +109,8 @@ class PartialResult:
         reason: why it must not be published ("" when it may).
         over_limit: the refusal was the predicted heading error above this limit (degrees), else None.
         azimuth: share of the azimuth sectors the calibrated field visited (nan when not computed).
+        sigma: the noise of the fit's residuals (nan when it failed): the next fit on the same kind of data
+            may take it as given (``partial_fit(sigma=...)``).
     """
 
     calibration: Calibration | None
@@ -119,6 +123,7 @@ class PartialResult:
     reason: str
     over_limit: float | None = None
     azimuth: float = math.nan
+    sigma: float = math.nan
 
 
 def sphere_radius(points: Array) -> float:
@@ -143,18 +148,6 @@ def azimuth_coverage(cal: Calibration, raw: Array, sectors: int = 36) -> float:
     h = cal.apply(raw)
     k = np.floor((np.arctan2(h[:, 1], h[:, 0]) + math.pi) / (2.0 * math.pi) * sectors).astype(int) % sectors
     return len(np.unique(k)) / sectors
-
-
-def _with_norm_uncertainty(cal: Calibration, series: Array, prior: Calibration, inflate: float,
-                           stamp: float) -> Calibration:
-    """Add the uncertainty of a norm estimated from the data (``NORM_REL_STD``) to the covariance: the MAP
-    fit holds the norm fixed, and on a ring the vertical offset follows the norm it is given."""
-    n = prior.norm * (1.0 + NORM_REL_STD)
-    alt = fit_with_prior(series, prior.replace(norm=n), inflate=inflate, stamp=stamp, time_ordered=True).calibration
-    d = np.r_[alt.offset - cal.offset, [alt.matrix[i, j] * prior.norm / n - cal.matrix[i, j]
-                                        for i, j in ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))]]
-    assert cal.covariance is not None
-    return cal.replace(covariance=np.asarray(cal.covariance) + np.outer(d, d))
 
 
 def _inclination(cfg: PipelineConfig, cal: Calibration, raw: Array | None) -> float:
@@ -182,8 +175,12 @@ def heading_figures(cal: Calibration, points: Array, cfg: PipelineConfig) -> tup
 
 def partial_fit(series: Array, prior: Calibration | None, cfg: PipelineConfig, *, recent: Array,
                 current: Calibration | None, stamp: float, sensor: str,
-                current_heading: float | None = None) -> PartialResult:
-    """The MAP fit of ``series`` (time-ordered raw samples) from ``prior`` and its verdict (module docstring)."""
+                current_heading: float | None = None, sigma: float | None = None) -> PartialResult:
+    """The MAP fit of ``series`` (time-ordered raw samples) from ``prior`` and its verdict (module docstring).
+
+    ``sigma``: the residual noise of the previous fit on the same kind of data, taken as given (one solve
+    per start instead of three: ~5x cheaper) unless the residuals at the solution disagree by more than
+    ``SIGMA_REUSE_TOLERANCE``, when the fit is repeated with the noise estimated."""
     kind = "previous" if prior is not None else "broad"
     try:
         if prior is not None and (prior.covariance is None or tuple(prior.parameter_names) != SYM_NAMES):
@@ -197,30 +194,31 @@ def partial_fit(series: Array, prior: Calibration | None, cfg: PipelineConfig, *
             inflate = 1.0
         else:
             inflate = cfg.prior_inflate
-        pf = fit_with_prior(series, prior, inflate=inflate, stamp=stamp, time_ordered=True)
+        # an estimated norm is a tenth parameter with its own uncertainty (module docstring)
+        norm_std = NORM_REL_STD if (sensor == "mag" and not cfg.reference_norm and kind == "broad") else 0.0
+        pf = fit_with_prior(series, prior, inflate=inflate, stamp=stamp, time_ordered=True, norm_rel_std=norm_std,
+                            sigma=sigma)
+        if sigma is not None and not abs(pf.residual_sigma / sigma - 1.0) <= SIGMA_REUSE_TOLERANCE:
+            pf = fit_with_prior(series, prior, inflate=inflate, stamp=stamp, time_ordered=True, norm_rel_std=norm_std)
         cal = pf.calibration
         if sensor != "mag":
             return PartialResult(cal, pf.updated, pf.from_prior, kind, math.nan, math.inf, None,
                                  f"partial fit (not published for the {sensor}): the poses seen determine "
                                  f"{', '.join(pf.updated) or 'no parameter'}; "
-                                 f"{', '.join(pf.from_prior) or 'none'} need more poses")
+                                 f"{', '.join(pf.from_prior) or 'none'} need more poses", sigma=pf.residual_sigma)
         tilt = tilt_seen_deg(cal, series)
         rich = not tilt <= cfg.partial_max_tilt_deg
         # the cheap verdicts first: a fit they refuse needs no norm uncertainty and no heading figures
         if rich and not (cfg.early_fit and current is None):
             return PartialResult(cal, pf.updated, pf.from_prior, kind, tilt, math.inf, None,
                                  f"partial fit: the data are tilted up to {tilt:.0f} deg > {cfg.partial_max_tilt_deg:g} "
-                                 "deg, not a ring or band: the full path decides")
+                                 "deg, not a ring or band: the full path decides", sigma=pf.residual_sigma)
         azimuth = azimuth_coverage(cal, series)
         if not rich and not azimuth >= cfg.partial_min_azimuth:
             return PartialResult(cal, pf.updated, pf.from_prior, kind, tilt, math.inf, None,
                                  f"partial fit: the field turned through {100 * azimuth:.0f} % of the azimuths about the "
                                  f"body z axis < {100 * cfg.partial_min_azimuth:.0f} %: not a ground robot's turns",
-                                 azimuth=azimuth)
-        if not cfg.reference_norm and kind == "broad" and not rich:
-            # a ring's vertical offset follows the norm it is given; rich data fix the offset whatever the
-            # norm (a wrong norm only rescales the matrix, which no heading sees): no second fit there
-            cal = _with_norm_uncertainty(cal, series, prior, inflate, stamp)
+                                 azimuth=azimuth, sigma=pf.residual_sigma)
         inc = _inclination(cfg, cal, None if rich else series)  # "z up on average" holds for a ring, not a tumble
         figs = _figures(cal, inc)
         seen = figs.tilt30_deg if rich else heading_p95(cal, tilt_deg=tilt, inclination=inc)
@@ -242,4 +240,4 @@ def partial_fit(series: Array, prior: Calibration | None, cfg: PipelineConfig, *
                             None if current_heading is not None else current)
         if rails:
             reason = f"partial fit: {rails}"
-    return PartialResult(cal, pf.updated, pf.from_prior, kind, tilt, seen, figs, reason, over, azimuth)
+    return PartialResult(cal, pf.updated, pf.from_prior, kind, tilt, seen, figs, reason, over, azimuth, pf.residual_sigma)

@@ -14,8 +14,11 @@ estimate and the decision live in ``observable`` (see its docstring). Here:
   calibration, a sensor change is pending, or the current one is partial; and the series grew since
   the last attempt by a quarter (``PARTIAL_GROWTH``), or by what that attempt's refusal asks for (up to
   doubling, ``PARTIAL_GROWTH_MAX``: a heading error 3x its limit or a third of the azimuths turned
-  through is not retried after a few more samples), which overrides the skip rule's back-off (a ground
-  robot's buffer stops changing, its series does not);
+  through is not retried after a few more samples; a published partial calibration is refitted once the
+  series doubled: its heading error falls by a factor sqrt(2) at most meanwhile), which overrides the skip
+  rule's back-off (a ground robot's buffer stops changing, its series does not);
+- the noise of the last fit's residuals, per kind of data (the early fits' raw samples, the series'
+  means), given to the next fit of that kind (one solve per start instead of three);
 - the status fields: ``partial``, ``updated_parameters``, ``prior_parameters``, the predicted heading
   p95 level and at ±30° (also for a full magnetometer calibration), the tilt seen.
 
@@ -79,6 +82,7 @@ class PartialCalibration:
         self._prior: Calibration | None = None
         self._early_close = False  # the last early fit's predicted heading error was within EARLY_CLOSE x its limit
         self._partial_growth = self.PARTIAL_GROWTH  # share of the series to wait for before the next partial fit
+        self._partial_sigma: dict[bool, float] = {}  # the last fit's residual noise, by early (raw) or not (means)
 
     def _cadence(self) -> tuple[int, float]:
         """(samples, seconds) between evaluations: ``recheck_interval_s`` while calibrated by the full
@@ -94,7 +98,14 @@ class PartialCalibration:
             every, interval = cfg.refit_every, cfg.refit_min_interval_s
         return every, max(0.0, interval - 1e-6)
 
+    def _partial_noise(self, job: dict[str, Any]) -> None:
+        """Remember the noise of a partial fit's residuals for the next fit on the same kind of data."""
+        res: PartialResult | None = job.get("result")
+        if res is not None and math.isfinite(res.sigma) and res.sigma > 0:
+            self._partial_sigma[bool(job.get("early"))] = res.sigma
+
     def _partial_close(self, job: dict[str, Any]) -> None:
+        self._partial_noise(job)
         res: PartialResult | None = job.get("result")
         cfg = self.config
         limit = max(cfg.early_heading_p95_deg, cfg.max_heading_p95_deg)
@@ -148,11 +159,12 @@ class PartialCalibration:
         if early:  # the recent samples until the series is long enough
             series = np.array(self._recent_v, dtype=np.float64).reshape(-1, 3)
         return {**job, "partial": True, "series": series, "prior": self._prior, "early": early,
+                "sigma": self._partial_sigma.get(early),
                 "current_heading": None if cur is None else cur.heading_seen_deg}
 
     def _partial_compute(self, job: dict[str, Any]) -> tuple[Calibration | None, str]:
         res = partial_fit(job["series"], job["prior"], job["config"], recent=job["recent"], current=job["current"],
-                          stamp=job["t"], sensor=self.sensor, current_heading=job["current_heading"])
+                          stamp=job["t"], sensor=self.sensor, current_heading=job["current_heading"], sigma=job["sigma"])
         job["result"] = res
         if res.reason or res.calibration is None:
             return None, res.reason or "partial fit failed"
@@ -166,9 +178,10 @@ class PartialCalibration:
     def _partial_installed(self, job: dict[str, Any], cal: Calibration) -> str:
         """Bookkeeping after ``job``'s calibration was installed; the words the CALIBRATED event adds."""
         if job.get("partial"):
+            self._partial_noise(job)
             res: PartialResult = job["result"]
             self._partial, self._partial_note = res, ""
-            self._partial_growth = self.PARTIAL_GROWTH
+            self._partial_growth = self.PARTIAL_GROWTH_MAX  # a refit once the series doubled (module docstring)
             self._figures = res.figures
             return (f"; partial: updated {','.join(res.updated) or 'none'}, from the {res.prior_kind} prior "
                     f"{','.join(res.from_prior) or 'none'}; heading p95 {res.heading_seen_deg:.2f} deg at the tilt seen "

@@ -1,0 +1,44 @@
+"""The predicted heading error per attitude (``heading_std_deg``) and its p95 bound."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ros_margcal import Calibration
+from ros_margcal.model.errors import InputError
+from ros_margcal.model.fitting_prior import NAMES
+from ros_margcal.model.heading import attitudes, heading_p95, heading_std_deg
+
+
+def _cal(n: float = 48e-6) -> Calibration:
+    cov = np.diag(np.r_[np.full(3, 0.01 * n), np.full(6, 0.005)] ** 2)
+    return Calibration(np.zeros(3), np.eye(3), norm=n, covariance=cov, parameter_names=NAMES)
+
+
+def test_the_p95_bound_is_the_percentile_of_the_per_attitude_std() -> None:
+    """``heading_p95`` is the 95th percentile of ``1.96 heading_std_deg`` over its attitudes."""
+    cal = _cal()
+    for tilt in (0.0, 30.0):
+        sd = heading_std_deg(cal, attitudes(tilt), inclination=60.0)
+        assert heading_p95(cal, tilt_deg=tilt) == pytest.approx(float(np.percentile(1.96 * sd, 95)), rel=1e-12)
+
+
+def test_a_horizontal_offset_error_is_seen_level_as_its_angle() -> None:
+    """Only b_x uncertain (sd 1 % of the horizontal field): the level heading std peaks at 0.573 deg
+    (a 0.01 rad angle) when the field points along y, and is zero when it points along x."""
+    n, inc = 48e-6, np.radians(60.0)
+    cov = np.zeros((9, 9))
+    cov[0, 0] = (0.01 * n * np.cos(inc)) ** 2
+    cal = Calibration(np.zeros(3), np.eye(3), norm=n, covariance=cov, parameter_names=NAMES)
+    sd = heading_std_deg(cal, attitudes(0.0, n_yaw=4), inclination=60.0)
+    assert sd.max() == pytest.approx(np.degrees(0.01), rel=1e-4)
+    assert sd.min() == pytest.approx(0.0, abs=1e-9)
+
+
+def test_a_single_attitude_and_no_covariance() -> None:
+    """One rotation matrix is accepted; a calibration without covariance is refused."""
+    sd = heading_std_deg(_cal(), np.eye(3))
+    assert sd.shape == (1,) and sd[0] > 0
+    with pytest.raises(InputError):
+        heading_std_deg(Calibration.identity(48e-6), np.eye(3))
