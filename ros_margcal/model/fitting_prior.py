@@ -23,14 +23,15 @@ so its norm residuals are far below the noise), while the geometric residual can
     S(theta) = sum_i r_i(theta)^2 / sigma^2 + (theta - theta_0)^T P_0^-1 (theta - theta_0),
 
 solved as the stacked least-squares problem ``[r / sigma; L^T (theta - theta_0)]`` (``L L^T = P_0^-1``)
-by MINPACK's Levenberg-Marquardt (scipy) with the *exact* Jacobian of ``r``: writing ``y = W d``, ``q = W y``,
+by Levenberg-Marquardt on the normal equations (``_lm``) with the *exact* Jacobian of ``r``: writing ``y = W d``, ``q = W y``,
 ``r = (|y| - n) |y| / |q|`` and ``dr = alpha (y . dy) - beta (q . dq)`` with ``alpha = (2|y| - n) / (|y| |q|)``,
 ``beta = r / |q|^2``. (Dropping the derivative of ``1 / |W u|`` is not harmless: LM then stops where
 ``J^T r = 0`` for the wrong ``J``, an ``O(sigma^2)`` bias per point that does not average out; on a ring it
-moved the weakly determined terms by several sigmas, more the more points.) Starts: the prior and the
-centres of a sphere of the prior's radius through the data (two on a ring, where the vertical centre is
-fixed by the norm only up to its sign); the lowest posterior cost wins, every start judged at the lowest
-sigma found. ``sigma`` is re-estimated from the residuals (MAD) between solves unless given. The
+moved the weakly determined terms by several sigmas, more the more points.) Starts (unless one is given,
+e.g. a stream's previous solution): the prior and the centres of a sphere of the prior's radius through
+the data (two on a ring, where the vertical centre is fixed by the norm only up to its sign); the
+lowest posterior cost wins, every start judged at the lowest sigma found. ``sigma`` is re-estimated
+from the residuals (MAD) between solves unless given. The
 posterior covariance is ``P = H^-1`` with ``H = J^T J / sigma^2 + P_0^-1`` at the solution (the information
 form of the Gauss-Newton step).
 
@@ -179,7 +180,7 @@ def _prior_parts(prior: Calibration, inflate: float) -> tuple[Array, Array]:
 
 def fit_with_prior(points: ArrayLike, prior: Calibration, *, sigma: float | None = None, inflate: float = 1.0,
                    max_iter: int = 200, stamp: float = 0.0, time_ordered: bool = False,
-                   norm_rel_std: float = 0.0) -> PriorFit:
+                   norm_rel_std: float = 0.0, start: Calibration | None = None) -> PriorFit:
     """MAP fit of the symmetric model to ``points`` (N, 3) given a prior calibration (module docstring).
 
     Args:
@@ -195,6 +196,8 @@ def fit_with_prior(points: ArrayLike, prior: Calibration, *, sigma: float | None
         norm_rel_std: relative standard deviation of ``prior.norm`` (0, the default: the norm is known and held
             fixed); above 0 the norm is a tenth parameter with that prior, estimated with the others, and the
             covariance is marginal over it (module docstring).
+        start: a calibration to start from instead of the default starts (one solve): a stream's previous
+            fit on most of the same data, which already won over the default starts.
 
     Raises:
         InputError: bad points, prior or argument; DegenerateDataError: fewer than 3 points;
@@ -222,10 +225,18 @@ def fit_with_prior(points: ArrayLike, prior: Calibration, *, sigma: float | None
     chol = np.linalg.cholesky(info0).T  # chol^T chol = P_0^-1
     z = np.ascontiguousarray(pts.T)
     floor = _MIN_SIGMA_REL * prior.raw_radius
+    if start is not None:
+        th = pack(np.asarray(start.offset, dtype=np.float64), np.asarray(start.matrix, dtype=np.float64), "sym")
+        starts = [np.r_[th, float(start.norm)] if theta0.size == 10 else th]
+        if not np.all(np.isfinite(starts[0])):
+            msg = "the start calibration is not finite"
+            raise InputError(msg)
+    else:
+        starts = _starts(pts, theta0, prior.raw_radius)
     sols = []
-    for start in _starts(pts, theta0, prior.raw_radius):
+    for th_start in starts:
         try:
-            sols.append(_solve(z, start, theta0, info0, n0, sigma, floor, max_iter))
+            sols.append(_solve(z, th_start, theta0, info0, n0, sigma, floor, max_iter))
         except (np.linalg.LinAlgError, ValueError, FloatingPointError):
             continue
     if not sols:
@@ -366,15 +377,16 @@ def _solve(z: Array, start: Array, theta0: Array, info0: Array, n: float, sigma:
 
 def _lm(z: Array, theta: Array, theta0: Array, info0: Array, n: float, s: float, max_iter: int) -> tuple[Array, int]:
     """Levenberg-Marquardt on ``S(theta)`` through its normal equations: ``(H + lam diag H) step = -g`` with
-    ``H = J^T J / s^2 + P_0^-1`` (10 x 10 at most), one residual-and-Jacobian evaluation per trial; stops when a
-    step lowers (or its quadratic model promises to lower) ``S`` by less than ``_LM_FTOL`` of it, or moves
-    ``theta`` by less than ``_LM_XTOL`` of its size.
-    (MINPACK's QR of the stacked (N + P) x P system did the same work at ~5x the cost.)"""
+    ``H = J^T J / s^2 + P_0^-1`` (10 x 10 at most), one residual-and-Jacobian evaluation per trial, the damping
+    updated from the ratio of the actual to the predicted decrease (Nielsen's rule); stops when a step
+    lowers (or its quadratic model promises to lower) ``S`` by less than ``_LM_FTOL`` of it, or moves
+    ``theta`` by less than ``_LM_XTOL`` of its size. (MINPACK's QR of the stacked (N + P) x P system gave the
+    same solutions at several times the cost.)"""
     w = 1.0 / (s * s)
     r, jt = _geometric(z, theta, n)
     dp = theta - theta0
     cost = w * float(r @ r) + float(dp @ info0 @ dp)
-    lam, evals = 1e-3, 1
+    lam, nu, evals = 1e-3, 2.0, 1
     h = g = None
     while evals < max_iter:
         if h is None:
@@ -384,12 +396,12 @@ def _lm(z: Array, theta: Array, theta0: Array, info0: Array, n: float, s: float,
         try:
             step = -np.linalg.solve(h + lam * np.diag(np.diag(h)), g)
         except np.linalg.LinAlgError:
-            lam *= 10.0
+            lam, nu = lam * nu, 2.0 * nu
             if lam > _LM_LAM_MAX:
                 break
             continue
-        if -2.0 * float(g @ step) - float(step @ h @ step) <= _LM_FTOL * cost or \
-                float(np.linalg.norm(step)) <= _LM_XTOL * (float(np.linalg.norm(theta)) + _LM_XTOL):
+        pred = -2.0 * float(g @ step) - float(step @ h @ step)
+        if pred <= _LM_FTOL * cost or float(np.linalg.norm(step)) <= _LM_XTOL * (float(np.linalg.norm(theta)) + _LM_XTOL):
             break  # the quadratic model promises (next to) nothing: converged, no evaluation spent on it
         cand = theta + step
         r2, jt2 = _geometric(z, cand, n)
@@ -397,13 +409,14 @@ def _lm(z: Array, theta: Array, theta0: Array, info0: Array, n: float, s: float,
         dp2 = cand - theta0
         cost2 = w * float(r2 @ r2) + float(dp2 @ info0 @ dp2)
         if math.isfinite(cost2) and cost2 < cost:
+            rho = (cost - cost2) / pred
             done = cost - cost2 <= _LM_FTOL * cost
             theta, r, jt, dp, cost, h = cand, r2, jt2, dp2, cost2, None
-            lam = max(lam / 3.0, 1e-12)
+            lam, nu = lam * max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3), 2.0
             if done:
                 break
         else:
-            lam *= 4.0
+            lam, nu = lam * nu, 2.0 * nu
             if lam > _LM_LAM_MAX:
                 break
     return theta, evals

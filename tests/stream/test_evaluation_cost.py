@@ -49,13 +49,13 @@ def _run(rec: dict[str, Any], monkeypatch: pytest.MonkeyPatch) -> tuple[SensorCa
 
 def test_partial_fits_wait_for_what_a_refusal_asks(ground: dict[str, Any], monkeypatch: pytest.MonkeyPatch) -> None:
     """A fit refused far from its heading limit (or on few azimuths) is retried after proportionally more
-    data, not after a fixed quarter: fewer fits, and the calibration comes no later."""
+    data, not after a fixed quarter: half the fits, and the first calibration within 10 % of the time."""
     _, adaptive, first = _run(ground, monkeypatch)
     monkeypatch.setattr(PartialCalibration, "PARTIAL_GROWTH_MAX", PartialCalibration.PARTIAL_GROWTH)
     _, fixed, first_fixed = _run(ground, monkeypatch)
     assert first is not None and first_fixed is not None
-    assert first <= first_fixed
-    assert len(adaptive) < 0.8 * len(fixed), (len(adaptive), len(fixed))
+    assert first <= 1.1 * first_fixed, (first, first_fixed)
+    assert len(adaptive) < 0.6 * len(fixed), (len(adaptive), len(fixed))
     # the rule was exercised: refusals that asked for more than a quarter more data
     far = [r for _, r in adaptive if (r.over_limit and r.heading_seen_deg > 1.25 * r.over_limit)
            or 0.0 < r.azimuth < 0.9 / 1.25]
