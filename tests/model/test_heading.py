@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from ros_margcal import Calibration
 from ros_margcal.model.errors import InputError
@@ -42,3 +43,13 @@ def test_a_single_attitude_and_no_covariance() -> None:
     assert sd.shape == (1,) and sd[0] > 0
     with pytest.raises(InputError):
         heading_std_deg(Calibration.identity(48e-6), np.eye(3))
+
+
+@pytest.mark.parametrize("tilt", [0.0, 3.5, 30.0])
+def test_attitudes_are_yaw_pitch_roll_rotations(tilt: float) -> None:
+    """The grid: R = Rz(yaw) Ry(pitch) Rx(roll) over 72 yaws and roll, pitch in {-tilt, 0, tilt}."""
+    got = attitudes(tilt)
+    tilts = [0.0] if tilt == 0 else [-tilt, 0.0, tilt]
+    yaws = np.degrees(np.linspace(0.0, 2.0 * np.pi, 72, endpoint=False))
+    want = [Rotation.from_euler("ZYX", [y, p, r], degrees=True).as_matrix() for r in tilts for p in tilts for y in yaws]
+    np.testing.assert_allclose(got, np.array(want), atol=1e-12)
