@@ -227,10 +227,7 @@ def fit_with_prior(points: ArrayLike, prior: Calibration, *, sigma: float | None
     floor = _MIN_SIGMA_REL * prior.raw_radius
     if start is not None:
         th = pack(np.asarray(start.offset, dtype=np.float64), np.asarray(start.matrix, dtype=np.float64), "sym")
-        starts = [np.r_[th, float(start.norm)] if theta0.size == 10 else th]
-        if not np.all(np.isfinite(starts[0])):
-            msg = "the start calibration is not finite"
-            raise InputError(msg)
+        starts = [np.r_[th, float(start.norm)] if theta0.size == 10 else th]  # a Calibration is finite
     else:
         starts = _starts(pts, theta0, prior.raw_radius)
     sols = []
