@@ -142,7 +142,9 @@ class DirectionBuffer:
         self._empty = 2 * self.hist_bins
         self._sum_r = 0.0
         self._sum_p = [0.0, 0.0, 0.0]
-        self._scatter = np.zeros((9, 9))  # sum of j j^T about the centre (indicator E)
+        self._scatter = np.zeros((9, 9))  # sum of j j^T about the centre (indicator E) ...
+        self._scatter_rows: list[tuple[float, ...]] = []  # ... but for these rows, added (or removed) on demand
+        self._scatter_signs: list[float] = []
         self._scatter_updates = 0
         self._n_occupied = 0
         self._hull.clear()
@@ -330,13 +332,22 @@ class DirectionBuffer:
         self._cache = None
 
     def _scatter_add(self, dx: float, dy: float, dz: float, sign: float) -> None:
-        j = np.array([dx, dy, dz, dx * dx, dy * dy, dz * dz, 2 * dx * dy, 2 * dx * dz, 2 * dy * dz])
-        self._scatter += sign * np.outer(j, j)
+        """Queue ``sign j j^T`` for the indicator-E sum: a 9 x 9 update costs ~3 us a sample, the queued rows
+        are added as one product when the indicators are read (``_scatter_flush``)."""
+        self._scatter_rows.append((dx, dy, dz, dx * dx, dy * dy, dz * dz, 2 * dx * dy, 2 * dx * dz, 2 * dy * dz))
+        self._scatter_signs.append(sign)
         self._scatter_updates += 1
+
+    def _scatter_flush(self) -> None:
+        if self._scatter_rows:
+            j = np.array(self._scatter_rows)
+            self._scatter += (j * np.array(self._scatter_signs)[:, None]).T @ j
+            self._scatter_rows, self._scatter_signs = [], []
 
     def _refresh_scatter(self) -> None:
         """Recompute the indicator-E sum from the live samples (bounds add/subtract rounding drift)."""
         self._scatter_updates = 0
+        self._scatter_rows, self._scatter_signs = [], []
         live = self._live()
         if not live:
             self._scatter = np.zeros((9, 9))
@@ -375,6 +386,7 @@ class DirectionBuffer:
         a = _quartile_spread(self._s_th) + _quartile_spread(self._s_ph)
         c = sum(s[-1] - s[0] for s in self._s_xyz)
         radius = self._radius if self._radius is not None else self._sum_r / n
+        self._scatter_flush()
         e_info = _e_info(self._scatter, n, radius)
         self._cache = _normalise(a, self._empty, c, self._hull.volume, n, radius, self.hist_bins, e_info)
         return self._cache
