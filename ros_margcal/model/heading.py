@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 
 from .calibration import Calibration
 from .errors import InputError
-from .fitting_core import pack, parameter_names, unpack
+from .fitting_core import parameter_names
 
 __all__ = ["attitudes", "heading_p95", "heading_std_deg", "inclination_deg"]
 
@@ -70,12 +70,18 @@ def inclination_deg(cal: Calibration, raw: Array, gravity_body: Array | None = N
     return math.degrees(math.asin(float(np.clip(-s, -1.0, 1.0))))
 
 
-def _headings(theta: Array, raw: Array, rot: Array) -> Array:
-    """Tilt-compensated heading (rad) of each raw reading under parameters ``theta`` and attitude ``rot``."""
-    b, w = unpack(theta, "sym")
-    h = (raw - b) @ w.T
-    world = np.einsum("kij,kj->ki", rot, h)
-    return np.arctan2(world[:, 0], world[:, 1])
+def _heading_gradient(w: Array, d: Array, rot: Array) -> Array:
+    """d(heading)/d(theta) (K, 9) at raw offsets ``d = raw - b`` (K, 3): with ``H = R W d`` and
+    ``psi = atan2(H_x, H_y)``, ``dpsi = c . dh``, ``c = (H_y R_0 - H_x R_1) / (H_x^2 + H_y^2)`` (R_i the rows of R),
+    ``dh = -W e_i`` for ``b_i``, ``e_j d_j`` for ``w_jj``, ``e_j d_k + e_k d_j`` for ``w_jk``."""
+    world = np.einsum("kij,kj->ki", rot, d @ w.T)
+    hx, hy = world[:, 0:1], world[:, 1:2]
+    c = (hy * rot[:, 0, :] - hx * rot[:, 1, :]) / (hx * hx + hy * hy)
+    grad = np.empty((len(d), 9))
+    grad[:, :3] = -(c @ w)
+    grad[:, 3:6] = c * d
+    grad[:, 6:9] = c[:, [0, 0, 1]] * d[:, [1, 2, 2]] + c[:, [1, 2, 2]] * d[:, [0, 0, 1]]
+    return grad
 
 
 def heading_std_deg(cal: Calibration, rot: Array, *, inclination: float = 60.0) -> Array:
@@ -89,20 +95,12 @@ def heading_std_deg(cal: Calibration, rot: Array, *, inclination: float = 60.0) 
         msg = f"heading error needs a covariance over {_NAMES}"
         raise InputError(msg)
     cov = np.asarray(cal.covariance, dtype=np.float64)
-    theta = pack(cal.offset, cal.matrix, "sym")
     rot = np.asarray(rot, dtype=np.float64).reshape(-1, 3, 3)
     inc = math.radians(inclination)
     m = cal.norm * np.array([0.0, math.cos(inc), -math.sin(inc)])
     body = np.einsum("kji,j->ki", rot, m)  # R^T m
     raw = np.linalg.solve(cal.matrix, body.T).T + cal.offset
-    scale = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    grad = np.empty((len(rot), theta.size))
-    for k in range(theta.size):
-        e = np.zeros_like(theta)
-        e[k] = 1e-6 * max(scale[k], 1e-9 * max(1.0, abs(theta[k])))
-        d = _headings(theta + e, raw, rot) - _headings(theta - e, raw, rot)
-        d = (d + math.pi) % (2.0 * math.pi) - math.pi
-        grad[:, k] = d / (2.0 * e[k])
+    grad = _heading_gradient(cal.matrix, raw - cal.offset, rot)
     var = np.einsum("ki,ij,kj->k", grad, cov, grad)
     return np.degrees(np.sqrt(np.clip(var, 0.0, None)))
 

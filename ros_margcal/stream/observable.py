@@ -72,8 +72,8 @@ from ..model.fitting_prior import broad_prior, fit_with_prior, posterior_at
 from ..model.heading import heading_p95, inclination_deg
 from .config import PipelineConfig, guard_rails
 
-__all__ = ["DEFAULT_INCLINATION_DEG", "HeadingFigures", "PartialResult", "azimuth_coverage", "heading_figures", "partial_fit",
-           "sphere_radius", "tilt_seen_deg"]
+__all__ = ["DEFAULT_INCLINATION_DEG", "SIGMA_REUSE_TOLERANCE", "HeadingFigures", "PartialResult", "azimuth_coverage",
+           "heading_figures", "partial_fit", "sphere_radius", "tilt_seen_deg"]
 
 Array = NDArray[np.float64]
 
@@ -176,12 +176,12 @@ def heading_figures(cal: Calibration, points: Array, cfg: PipelineConfig) -> tup
 def partial_fit(series: Array, prior: Calibration | None, cfg: PipelineConfig, *, recent: Array,
                 current: Calibration | None, stamp: float, sensor: str,
                 current_heading: float | None = None, sigma: float | None = None, max_iter: int = 200,
-                start: Calibration | None = None) -> PartialResult:
+                start: Calibration | None = None, sigma_tolerance: float = SIGMA_REUSE_TOLERANCE) -> PartialResult:
     """The MAP fit of ``series`` (time-ordered raw samples) from ``prior`` and its verdict (module docstring).
 
     ``sigma``: the residual noise of the previous fit on the same kind of data, taken as given (one solve
     per start instead of three: ~5x cheaper) unless the residuals at the solution disagree by more than
-    ``SIGMA_REUSE_TOLERANCE``, when the fit is repeated with the noise estimated. ``max_iter``: evaluations
+    ``sigma_tolerance``, when the fit is repeated with the noise estimated. ``max_iter``: evaluations
     per solve (an early fit's start that needs more is in a flat, wrong valley: another start wins).
     ``start``: the previous fit on the same series, the one start of the MAP fit (``fit_with_prior``)."""
     kind = "previous" if prior is not None else "broad"
@@ -201,7 +201,7 @@ def partial_fit(series: Array, prior: Calibration | None, cfg: PipelineConfig, *
         norm_std = NORM_REL_STD if (sensor == "mag" and not cfg.reference_norm and kind == "broad") else 0.0
         pf = fit_with_prior(series, prior, inflate=inflate, stamp=stamp, time_ordered=True, norm_rel_std=norm_std,
                             sigma=sigma, max_iter=max_iter, start=start)
-        if sigma is not None and not abs(pf.residual_sigma / sigma - 1.0) <= SIGMA_REUSE_TOLERANCE:
+        if sigma is not None and not abs(pf.residual_sigma / sigma - 1.0) <= sigma_tolerance:
             pf = fit_with_prior(series, prior, inflate=inflate, stamp=stamp, time_ordered=True, norm_rel_std=norm_std,
                                 max_iter=max_iter, start=start)
         cal = pf.calibration

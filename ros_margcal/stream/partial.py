@@ -18,8 +18,10 @@ estimate and the decision live in ``observable`` (see its docstring). Here:
   series doubled: its heading error falls by a factor sqrt(2) at most meanwhile), which overrides the skip
   rule's back-off (a ground robot's buffer stops changing, its series does not);
 - the noise of the last series fit's residuals and its solution, given to the next series fit (one solve
-  from that one start instead of three from each of two or three; the early fits, whose residuals still
-  carry the model's misfit, estimate their own from the default starts);
+  from that one start instead of three from each of two or three); the early fits take the last early
+  fit's noise as given whatever their residuals say (they still carry the model's misfit, and against the
+  broad prior the noise barely moves the estimate; the covariance of time-ordered data comes from the
+  residuals themselves);
 - the status fields: ``partial``, ``updated_parameters``, ``prior_parameters``, the predicted heading
   p95 level and at ±30° (also for a full magnetometer calibration), the tilt seen.
 
@@ -39,7 +41,7 @@ from numpy.typing import NDArray
 
 from ..model.calibration import Calibration
 from .config import PipelineConfig
-from .observable import SYM_NAMES, HeadingFigures, PartialResult, heading_figures, partial_fit
+from .observable import SIGMA_REUSE_TOLERANCE, SYM_NAMES, HeadingFigures, PartialResult, heading_figures, partial_fit
 
 __all__ = ["PartialCalibration"]
 
@@ -88,6 +90,7 @@ class PartialCalibration:
         self._prior: Calibration | None = None
         self._early_close = False  # the last early fit's predicted heading error was within EARLY_CLOSE x its limit
         self._partial_growth = self.PARTIAL_GROWTH  # share of the series to wait for before the next partial fit
+        self._early_sigma: float | None = None  # the residual noise of the last early fit
         self._partial_sigma: float | None = None  # the residual noise of the last fit on the series ...
         self._partial_start: Calibration | None = None  # ... and its solution, the next one's start
 
@@ -109,6 +112,8 @@ class PartialCalibration:
         """Remember the noise of a series fit's residuals and its solution for the next series fit: a solution
         published, or refused only for its heading error or the azimuths seen (not for its guard rails)."""
         res: PartialResult | None = job.get("result")
+        if res is not None and job.get("early") and math.isfinite(res.sigma) and res.sigma > 0:
+            self._early_sigma = res.sigma
         if res is None or job.get("early") or job.get("prior") is not self._prior:
             return
         sound = res.calibration is not None and (not res.reason or res.over_limit is not None
@@ -174,14 +179,15 @@ class PartialCalibration:
             k = -(-len(recent) // self.EARLY_POINTS)
             series = recent[len(recent) % k:].reshape(-1, k, 3).mean(axis=1) if k > 1 else recent
         return {**job, "partial": True, "series": series, "prior": self._prior, "early": early,
-                "sigma": None if early else self._partial_sigma,
+                "sigma": self._early_sigma if early else self._partial_sigma,
                 "start": None if (early or self._changed) else self._partial_start,  # a sensor change: every start
                 "current_heading": None if cur is None else cur.heading_seen_deg}
 
     def _partial_compute(self, job: dict[str, Any]) -> tuple[Calibration | None, str]:
         res = partial_fit(job["series"], job["prior"], job["config"], recent=job["recent"], current=job["current"],
                           stamp=job["t"], sensor=self.sensor, current_heading=job["current_heading"], sigma=job["sigma"],
-                          max_iter=self.EARLY_MAX_ITER if job["early"] else job["config"].max_iter, start=job["start"])
+                          max_iter=self.EARLY_MAX_ITER if job["early"] else job["config"].max_iter, start=job["start"],
+                          sigma_tolerance=math.inf if job["early"] else SIGMA_REUSE_TOLERANCE)
         job["result"] = res
         if res.reason or res.calibration is None:
             return None, res.reason or "partial fit failed"

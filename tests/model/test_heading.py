@@ -8,8 +8,9 @@ from scipy.spatial.transform import Rotation
 
 from ros_margcal import Calibration
 from ros_margcal.model.errors import InputError
+from ros_margcal.model.fitting_core import pack, unpack
 from ros_margcal.model.fitting_prior import NAMES
-from ros_margcal.model.heading import attitudes, heading_p95, heading_std_deg
+from ros_margcal.model.heading import _heading_gradient, attitudes, heading_p95, heading_std_deg
 
 
 def _cal(n: float = 48e-6) -> Calibration:
@@ -53,3 +54,29 @@ def test_attitudes_are_yaw_pitch_roll_rotations(tilt: float) -> None:
     yaws = np.degrees(np.linspace(0.0, 2.0 * np.pi, 72, endpoint=False))
     want = [Rotation.from_euler("ZYX", [y, p, r], degrees=True).as_matrix() for r in tilts for p in tilts for y in yaws]
     np.testing.assert_allclose(got, np.array(want), atol=1e-12)
+
+
+def test_the_analytic_heading_gradient_is_the_finite_difference_one() -> None:
+    """``_heading_gradient`` against central differences of the tilt-compensated heading, every parameter."""
+    rng = np.random.default_rng(8)
+    n = 48e-6
+    w = np.eye(3) + 0.03 * (lambda a: a + a.T)(rng.normal(size=(3, 3)))
+    b = rng.normal(scale=0.5 * n, size=3)
+    rot = attitudes(30.0, 12)
+    m = n * np.array([0.0, np.cos(np.radians(60.0)), -np.sin(np.radians(60.0))])
+    raw = np.linalg.solve(w, np.einsum("kji,j->ki", rot, m).T).T + b + rng.normal(scale=0.01 * n, size=(len(rot), 3))
+
+    def headings(theta: np.ndarray) -> np.ndarray:
+        bb, ww = unpack(theta, "sym")
+        world = np.einsum("kij,kj->ki", rot, (raw - bb) @ ww.T)
+        return np.arctan2(world[:, 0], world[:, 1])
+
+    theta = pack(b, w, "sym")
+    want = np.empty((len(rot), 9))
+    for k in range(9):
+        e = np.zeros(9)
+        e[k] = 1e-7 * (n if k < 3 else 1.0)
+        d = headings(theta + e) - headings(theta - e)
+        want[:, k] = ((d + np.pi) % (2 * np.pi) - np.pi) / (2 * e[k])
+    got = _heading_gradient(w, raw - b, rot)
+    np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-6 * np.abs(want).max())
