@@ -80,7 +80,8 @@ def _span(r: np.ndarray) -> str:
 def ground(gen: Any, quick: bool, seconds: float, fresh: bool = False) -> None:
     print(f"ground robot, {seconds:.0f} s at 50 Hz, 30 uT hard iron (independent generator)")
     print(f"  {'seeds':9s} {'tilt':>4s} {'calibrated':>10s} {'first s':>8s} {'first lvl':>9s} {'worst lvl':>9s} "
-          f"{'end lvl meas/pred':>18s} {'end 30deg meas/pred':>20s} {'pred/meas lvl':>14s} {'pred/meas 30':>13s} {'upd':>4s}")
+          f"{'end lvl meas/pred':>18s} {'max end lvl':>11s} {'end 30deg meas/pred':>20s} {'pred/meas lvl':>14s} "
+          f"{'pred/meas 30':>13s} {'upd':>4s}")
     groups = {"tuning": TUNING[:2] if quick else TUNING, "held-out": HELD_OUT[:2] if quick else HELD_OUT}
     if fresh:
         groups["fresh"] = FRESH[:2] if quick else FRESH
@@ -93,7 +94,8 @@ def ground(gen: Any, quick: bool, seconds: float, fresh: bool = False) -> None:
             rl, rt = col["level_pred"][ok] / col["level"][ok], col["tilt30_pred"][ok] / col["tilt30"][ok]
             print(f"  {name:9s} {tilt:4.0f} {ok.sum():4d}/{len(seeds):<5d} {med['first']:8.0f} {med['first_level']:9.2f} "
                   f"{np.nanmax(col['worst_level']) if ok.any() else np.nan:9.2f} "
-                  f"{med['level']:8.2f}/{med['level_pred']:<9.2f} {med['tilt30']:9.2f}/{med['tilt30_pred']:<10.2f} "
+                  f"{med['level']:8.2f}/{med['level_pred']:<9.2f} {np.nanmax(col['level']) if ok.any() else np.nan:11.2f} "
+                  f"{med['tilt30']:9.2f}/{med['tilt30_pred']:<10.2f} "
                   f"{_span(rl):>14s} {_span(rt):>13s} {med['n_updated']:4.0f}")
     print("  (medians over the calibrated seeds; worst lvl: the worst measured level p95 of any published calibration)")
 
