@@ -98,19 +98,24 @@ def _slow_time(t: Array, left: Array, dirs: Array, std: float, white: float) -> 
 
 def shaped_truth(diag: Calibration, best: Calibration, tolerance: float, *, cross_only: bool = False) -> Calibration:
     """The twin's true sensor: the baseline ``diag`` fit, or with ``tolerance`` > 0 the best (``sym``)
-    fit whose cross-axis terms (off-diagonal entries of W relative to its diagonal) are clipped to
-    ``±tolerance``: a shape within the tolerance counts as the sensor's baseline and only its excess is
-    left as a gap (the ``ellipsoid_shape`` effects). With ``cross_only`` only those cross terms are taken
-    from ``best``, onto the offset and gains of ``diag`` (a ``best`` fitted on part of the sphere, whose
-    scale along the unseen directions is not to be trusted)."""
+    fit whose cross-axis terms (off-diagonal entries of W relative to its diagonal) are scaled down so
+    that their size, the root sum of squares of the three, is at most ``tolerance``: a shape within the
+    tolerance counts as the sensor's baseline and only its excess is left as a gap (the
+    ``ellipsoid_shape`` effects). The shape is one quantity: a bound per entry would let three terms
+    each up to the tolerance pass, a shape ``sqrt(3)`` times the expected one. With ``cross_only`` only
+    those cross terms are taken from ``best``, onto the offset and gains of ``diag`` (a ``best``
+    fitted on part of the sphere, whose scale along the unseen directions is not to be trusted)."""
     if tolerance <= 0 or best.model != "sym" or best is diag:
         return diag
     w = np.asarray(best.matrix, dtype=np.float64)
     d = np.sqrt(np.abs(np.diag(w)))
     c = w / np.outer(d, d)
-    off = ~np.eye(3, dtype=bool)
-    c[off] = np.clip(c[off], -tolerance, tolerance)
     c = 0.5 * (c + c.T)
+    upper = np.triu(np.ones((3, 3), dtype=bool), 1)
+    size = float(np.sqrt(np.sum(c[upper] ** 2)))
+    if size > tolerance:
+        off = ~np.eye(3, dtype=bool)
+        c[off] *= tolerance / size
     if cross_only:
         d = np.sqrt(np.abs(np.diag(np.asarray(diag.matrix, dtype=np.float64))))
         return diag.replace(matrix=c * np.outer(d, d), model="sym")

@@ -41,7 +41,7 @@ from .stages import stage_floor, stage_gaps
 from .twin import FIT_ERRORS, Baseline, Twin, mean_features
 
 __all__ = [
-    "CLOSE_MARGIN", "DRIFT_GROUP", "EffectFit", "applicable_effects", "effective_group", "equivalent_groups",
+    "CLOSE_MARGIN", "DRIFT_GROUP", "PLAIN_GROUPS", "EffectFit", "applicable_effects", "effective_group", "equivalent_groups",
     "fit_effect", "gap_with", "overall_gap", "rank_effects", "separate_close_calls"
 ]
 
@@ -59,6 +59,10 @@ CLOSE_MARGIN = 0.05
 """Shrink margin within which another group's effect is a close call to the top one (``separate_close_calls``)."""
 _SEPARATED = 2.0  # a feature separates two effects when their twins' means are this many pooled spreads apart
 _REFINE_DECADES = 0.1  # half-width of the top effect's magnitude re-fit on every seed of the spread
+PLAIN_GROUPS = ("ellipsoid_shape",)
+"""Groups named first in a close call that no feature separates (``separate_close_calls``): the ellipsoid
+is the model every calibration fits and the commonest sensor error; a non-ellipsoidal effect (a cubic
+non-linearity, which on a band of directions an ellipsoid mimics) is named over it only when the data show it."""
 DRIFT_GROUP = "slow_drift"
 """Group of ``bias_drift`` and ``temperature`` on a recording without a temperature column."""
 _DRIFT_MEMBERS = ("bias_drift", "temperature")
@@ -261,7 +265,8 @@ def separate_close_calls(twin: Twin, fits: list[EffectFit], seeds: tuple[int, ..
     their twins disagree — the means more than ``_SEPARATED`` pooled spreads apart (spread floored
     by ``STAGE_FLOORS``), e.g. whether the residual follows the temperature column or only a trend
     in time — decide: the effect whose twins the recording is closer to on them (sum of squared
-    z-scores) goes first. Without such features the order by shrink stands.
+    z-scores) goes first. Without such features the order by shrink stands, but for an effect of
+    ``PLAIN_GROUPS`` (the ellipsoid), which then goes first.
     """
     if len(fits) < 2:
         return fits
@@ -293,6 +298,9 @@ def separate_close_calls(twin: Twin, fits: list[EffectFit], seeds: tuple[int, ..
         if n_sep and score_b < score_a:
             log.debug("close call: %s before %s on %d separating features (%.3g < %.3g)",
                       other.name, top.name, n_sep, score_b, score_a)
+            return [other, *fits[:i], *fits[i + 1:]]
+        if not n_sep and other.group in PLAIN_GROUPS and top.group not in PLAIN_GROUPS:
+            log.debug("close call: %s before %s, no feature separates them (the plainer model)", other.name, top.name)
             return [other, *fits[:i], *fits[i + 1:]]
     return fits
 

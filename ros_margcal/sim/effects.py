@@ -11,8 +11,8 @@ the effects real sensors show and the baseline lacks (the list of DESIGN.md, "Th
 1. field side (body frame): ``disturbance`` / ``motion_leak`` add a vector, ``soft_iron`` deforms the
    field ``h -> (I + m S) h``, ``misalignment`` rotates it into the sensor frame;
 2. sensor model: ``nonorthogonality`` (skewed axes), gains ``W^-1`` (with the ``temperature`` gain
-   change), ``nonlinearity`` (cubic term), offset ``b`` (plus ``bias_drift``, ``hard_iron_jump`` and
-   the ``temperature`` offset);
+   change), offset ``b`` (plus ``bias_drift``, ``hard_iron_jump`` and the ``temperature`` offset), then
+   ``nonlinearity`` (a cubic term of the whole reading, offset included: an ADC sees the raw value);
 3. read-out: noise (baseline and the ``noise`` effect), ``saturation`` (clipping), ``quantization``.
 
 Every random quantity of an effect is drawn from its own generator seeded from one draw of the
@@ -105,12 +105,13 @@ EFFECTS: dict[str, Effect] = {
                "extra acceleration of random direction and 0.5-1 x magnitude x norm", ("accel",), True,
                "motion_leak", "fraction of norm (acceleration amplitude)", 0.05, (0.0, 0.5), "field",
                varying=True),
-        Effect("saturation", "readings clipped at a full scale of (1 - magnitude) x the largest reading the "
-               "true sensor can give", _BOTH, True, "saturation", "fraction of the range clipped", 0.1,
-               (0.0, 0.3), "readout", 1.0),
-        Effect("nonlinearity", "cubic term per axis, u_i + magnitude c_i u_i^3 / r_i^2 (c_i = ±0.5-1, r_i the "
-               "axis' full deflection): magnitude is the relative deviation at full deflection", _BOTH, True,
-               "nonlinearity", "fraction at full deflection", 0.01, (0.0, 0.05), "sensor"),
+        Effect("saturation", "readings clipped at a full scale of (1 - magnitude) x the largest clean reading of "
+               "the recording (what the motion reached, not what the sphere would)", _BOTH, True, "saturation",
+               "fraction of the range clipped", 0.1, (0.0, 0.3), "readout", 1.0),
+        Effect("nonlinearity", "cubic term per axis of the whole reading, offset included (an ADC's): v_i + "
+               "magnitude c_i v_i^3 / r_i^2 (c_i = ±0.5-1, r_i = |b_i| + the axis' full deflection): magnitude is "
+               "the relative deviation at the largest reading; a hard iron makes it quadratic in the field as well",
+               _BOTH, True, "nonlinearity", "fraction at the largest reading", 0.01, (0.0, 0.1), "sensor", 1.0 / 3.0),
         Effect("hard_iron_jump", "the offset steps once by magnitude x field radius along a random direction, "
                "at a random time in the middle half of the recording (a magnetised part moved or was "
                "attached on the platform)", ("mag",), True, "hard_iron_jump", "fraction of norm (step size)", 0.1,
@@ -228,10 +229,6 @@ def sensor_model(
         u = u * (1.0 + mt * signs * dtemp)
         offset += mt * r_raw * direction * dtemp
         varying = True
-    if m("nonlinearity", 0.0) > 0:
-        r = sub("nonlinearity")
-        c = r.choice([-1.0, 1.0], size=3) * r.uniform(0.5, 1.0, size=3)
-        u = u + m("nonlinearity", 0.0) * c * u**3 / r_axis**2
     if m("bias_drift", 0.0) > 0:
         r = sub("bias_drift")
         direction = unit_vectors(r.normal(size=3))
@@ -255,13 +252,19 @@ def sensor_model(
         offset += extra_offset
         varying = True
     raw = u + offset
+    if m("nonlinearity", 0.0) > 0:  # the converter sees the whole reading, offset (hard iron) included
+        r = sub("nonlinearity")
+        c = r.choice([-1.0, 1.0], size=3) * r.uniform(0.5, 1.0, size=3)
+        r_full = np.abs(truth.offset) + r_axis
+        raw = raw + m("nonlinearity", 0.0) * c * raw**3 / r_full**2
+    peak = float(np.max(np.abs(raw))) if n else 0.0  # the largest clean reading of this motion
     # 3. read-out
     if noise > 0:
         raw += np.random.default_rng([seed, 0]).normal(size=(n, 3)) * (noise * r_raw)
     if m("noise", 0.0) > 0:
         raw += sub("noise").normal(size=(n, 3)) * (m("noise", 0.0) * r_raw)
     if m("saturation", 0.0) > 0:
-        full_scale = (1.0 - m("saturation", 0.0)) * float(np.max(np.abs(truth.offset) + r_axis))
+        full_scale = (1.0 - m("saturation", 0.0)) * peak
         raw = np.clip(raw, -full_scale, full_scale)
     if m("quantization", 0.0) > 0:
         step = m("quantization", 0.0) * r_raw

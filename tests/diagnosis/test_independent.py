@@ -13,6 +13,8 @@ import pytest
 
 from ros_margcal.diagnosis import diagnose, locate_offset_change, stage_gaps
 from ros_margcal.diagnosis.baseline_noise import ar1_noise, estimate_slow_noise, shaped_truth
+from ros_margcal.diagnosis.ranking import PLAIN_GROUPS, EffectFit, separate_close_calls
+from ros_margcal.diagnosis.stages import StageFeatures
 from ros_margcal.diagnosis.twin import subsample
 from ros_margcal.model.calibration import Calibration
 from ros_margcal.recordings.recording import Recording
@@ -89,16 +91,24 @@ def test_stage_missing_from_the_spread_is_left_out() -> None:
 
 
 def test_shaped_truth_keeps_cross_terms_up_to_the_tolerance() -> None:
-    """Cross-axis terms within the tolerance are the baseline's; larger ones are clipped to it."""
+    """A shape within the tolerance is the baseline's; a larger one is scaled down to the tolerance as a
+    whole (root sum of squares of the three cross terms), its pattern kept: only the excess is a gap."""
     w = np.array([[1.0, 0.03, -0.1], [0.03, 1.2, 0.0], [-0.1, 0.0, 0.9]])
     best = Calibration(np.zeros(3), w, norm=1.0, model="sym")
     diag = Calibration(np.zeros(3), np.diag(np.diag(w)), norm=1.0, model="diag")
     assert shaped_truth(diag, best, 0.0) is diag
-    out = shaped_truth(diag, best, 0.05).matrix
     d = np.sqrt(np.outer(np.diag(w), np.diag(w)))
-    assert out[0, 1] == pytest.approx(0.03)
-    assert out[0, 2] / d[0, 2] == pytest.approx(-0.05)
+    upper = np.triu_indices(3, 1)
+    size = float(np.linalg.norm((w / d)[upper]))
+    out = shaped_truth(diag, best, 0.05).matrix
+    assert float(np.linalg.norm((out / d)[upper])) == pytest.approx(0.05)
+    np.testing.assert_allclose((out / d)[upper], (w / d)[upper] * 0.05 / size)
     assert np.allclose(np.diag(out), np.diag(w))
+    np.testing.assert_allclose(shaped_truth(diag, best, 1.1 * size).matrix, w)  # within: kept as fitted
+    # three terms each within a per-entry bound can still make a shape beyond the tolerance
+    w3 = np.array([[1.0, 0.04, 0.04], [0.04, 1.0, 0.04], [0.04, 0.04, 1.0]])
+    out3 = shaped_truth(diag.replace(matrix=np.eye(3)), best.replace(matrix=w3), 0.05).matrix
+    assert float(np.linalg.norm(out3[upper])) == pytest.approx(0.05)
 
 
 def test_slow_noise_is_found_only_where_there_is_some() -> None:
@@ -125,3 +135,49 @@ def test_cli_writes_a_verdict_for_a_hostile_independent_csv(independent: ModuleT
     assert main(["diagnose", str(tmp_path / "nl.csv"), "--sensor", "mag", "--norm", "4.8e-05", "--out", str(out),
                  "--quick", "--no-validator"]) == 0
     assert json.loads((out / "diagnosis.json").read_text())["cause"] in VERDICTS
+
+
+class _StubTwin:
+    """Just what ``separate_close_calls`` reads: the recording's features and the effect twins' features."""
+
+    def __init__(self, rec: dict[str, np.ndarray], per_effect: dict[str, list[dict[str, np.ndarray]]]) -> None:
+        self.features_rec = StageFeatures(values=rec, residual=np.zeros(1), dirs=np.zeros((1, 3)), t=np.zeros(1),
+                                          rest_noise=0.0)
+        self._per = per_effect
+
+    def try_features(self, effects: dict[str, float], seed: int) -> StageFeatures:
+        (name,) = effects
+        vals = self._per[name][seed]
+        return StageFeatures(values=vals, residual=np.zeros(1), dirs=np.zeros((1, 3)), t=np.zeros(1), rest_noise=0.0)
+
+
+def _fit(name: str, group: str, shrink: float) -> EffectFit:
+    return EffectFit(name=name, group=group, magnitude=0.01, unit="", gap_before=5.0, gap_after=5.0 * (1 - shrink),
+                     shrink=shrink, n_seeds=3)
+
+
+def test_close_call_that_no_feature_separates_names_the_ellipsoid() -> None:
+    """A non-linearity a hair ahead of a shape effect, on twins that agree on every feature (a band of
+    directions), yields to the plainer ellipsoid; with a feature that separates them, the data decide."""
+    same = [{"residual_size": np.array([-2.0 + 0.001 * s])} for s in range(3)]
+    twin = _StubTwin({"residual_size": np.array([-2.0])}, {"nonlinearity": same, "soft_iron": same})
+    fits = [_fit("nonlinearity", "nonlinearity", 0.74), _fit("soft_iron", "ellipsoid_shape", 0.73)]
+    assert "ellipsoid_shape" in PLAIN_GROUPS
+    assert separate_close_calls(twin, fits, (0, 1, 2))[0].name == "soft_iron"
+    far = [{"residual_size": np.array([-1.0 + 0.001 * s])} for s in range(3)]  # the shape's twins miss the recording
+    twin = _StubTwin({"residual_size": np.array([-2.0])}, {"nonlinearity": same, "soft_iron": far})
+    assert separate_close_calls(twin, fits, (0, 1, 2))[0].name == "nonlinearity"
+    fits_wide = [_fit("nonlinearity", "nonlinearity", 0.80), _fit("soft_iron", "ellipsoid_shape", 0.70)]
+    assert separate_close_calls(twin, fits_wide, (0, 1, 2))[0].name == "nonlinearity"  # not a close call
+
+
+def test_clipping_on_a_band_is_saturation(independent: ModuleType) -> None:
+    """On a band of directions one axis can sit at the clip level most of the time and the fitted sphere
+    overstates the range no reading reaches; the clip level is measured against the largest reading the
+    motion gives, so the twin clips where the recording does and the verdict is saturation, not quantization."""
+    rec, norm = _recording(independent, "saturation", motion="band", seed=1)
+    clipped = np.mean(rec.raw == rec.raw.min(axis=0), axis=0) + np.mean(rec.raw == rec.raw.max(axis=0), axis=0)
+    assert clipped.max() > 0.5  # the case: an axis at its clip level for most of the recording
+    d = diagnose(rec, sensor="mag", norm=norm, quick=True, shape_tolerance=0.05)
+    assert d.cause == "saturation"
+    assert d.best is not None and 0.0 < d.best.magnitude < 0.2

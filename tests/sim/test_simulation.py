@@ -303,13 +303,30 @@ def test_shape_effects_keep_an_ellipsoid(name: str) -> None:
 
 
 def test_nonlinearity_leaves_the_ellipsoid() -> None:
-    """A cubic term cannot be absorbed by any ellipsoid, and deviates by ~m at full deflection."""
+    """A cubic term of the whole reading cannot be absorbed by any ellipsoid, and deviates by ~m at the
+    largest reading (offset included: an ADC sees the raw value)."""
     truth, base, rec = _pair("nonlinearity", 0.02)
     assert _quadric_residual(rec.raw) > 1e-5
     dev = np.abs(rec.raw - base.raw).max(axis=0)
-    r_axis = truth.norm * np.linalg.norm(np.linalg.inv(truth.matrix), axis=1)
-    assert np.all(dev <= 0.02 * r_axis * 1.0001)
-    assert np.all(dev > 0.02 * r_axis * 0.4)
+    r_full = np.abs(truth.offset) + truth.norm * np.linalg.norm(np.linalg.inv(truth.matrix), axis=1)
+    assert np.all(dev <= 0.02 * r_full * 1.0001)
+    assert np.all(dev > 0.02 * r_full * 0.3)
+
+
+def test_nonlinearity_of_an_offset_reading_is_quadratic_in_the_field() -> None:
+    """With an offset the cubic term of the raw reading has a part even in the field (3 m c b u^2 / r^2),
+    which a cubic of the offset-free reading lacks: opposite directions no longer mirror about b."""
+    truth = random_sensor(_rng(3), "mag")
+    dirs = directions("uniform", 500, _rng(4))
+    both = np.vstack([dirs, -dirs])
+    rec = simulate(truth, both, noise=0.0, rng=_rng(5), effects={"nonlinearity": 0.05}).raw
+    even = 0.5 * (rec[:500] + rec[500:]) - truth.offset  # the part even in the field, offset removed
+    spread = np.ptp(even, axis=0)  # a constant (b^3 term) is an offset; the u^2 term varies with direction
+    u_axis = truth.norm * np.linalg.norm(np.linalg.inv(truth.matrix), axis=1)
+    r_full = np.abs(truth.offset) + u_axis
+    expected = 0.05 * 3 * np.abs(truth.offset) * u_axis**2 / r_full**2  # |c| in [0.5, 1]
+    assert np.all(spread > 0.3 * expected)
+    assert np.all(spread < 1.05 * expected)
 
 
 def test_quantization_rounds_to_the_lsb() -> None:
@@ -320,10 +337,9 @@ def test_quantization_rounds_to_the_lsb() -> None:
 
 
 def test_saturation_clips_at_the_full_scale() -> None:
-    """Readings are clipped at (1 - m) of the largest possible reading; some are clipped."""
-    truth, base, rec = _pair("saturation", 0.2)
-    r_axis = truth.norm * np.linalg.norm(np.linalg.inv(truth.matrix), axis=1)
-    full = 0.8 * np.max(np.abs(truth.offset) + r_axis)
+    """Readings are clipped at (1 - m) of the largest clean reading; some are clipped."""
+    _, base, rec = _pair("saturation", 0.2)
+    full = 0.8 * np.max(np.abs(base.raw))  # the largest clean reading of the recording
     assert np.abs(rec.raw).max() == pytest.approx(full)
     changed = np.any(rec.raw != base.raw, axis=1)
     assert 0 < changed.sum() < len(changed)
