@@ -49,8 +49,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("--quick", action="store_true",
                    help="fewer fitting samples and twin seeds: about three times faster, a noisier ranking")
     p.add_argument("--shape-tolerance", type=float, default=0.0, metavar="FRACTION",
-                   help="cross-axis terms (off-diagonal of W relative to its diagonal) that count as the sensor's "
-                        "baseline, not as an ellipsoid_shape gap (default 0: offset and gains only)")
+                   help="size (root sum of squares) of the cross-axis terms of W relative to its diagonal that "
+                        "counts as the sensor's baseline, not as an ellipsoid_shape gap (default 0: offset and gains only)")
     p.add_argument("--no-validator", action="store_true", help="skip the validator stage and the retraining")
     p.add_argument("--retrain-sets", type=int, default=400,
                    help="simulated sets for the retrained validators, with and without the effect (default 400)")

@@ -40,6 +40,7 @@ from collections import deque
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.spatial import ConvexHull, QhullError
 
 from ..model.errors import ConfigError, InputError, as_vector3
 from .hull import IncrementalHull
@@ -80,6 +81,10 @@ class DirectionBuffer:
         min_interval_s: A bin accepts a new sample only if its newest one is at least this many
             seconds older (or newer: stamps that jump back by more than this are accepted).
         hist_bins: Histogram bins for indicator B.
+        hull_on_read: no incremental convex hull: its volume (indicator D) comes from one Qhull run when
+            the indicators are read after a change. Cheaper when reads are rarer than a few changes (the
+            calibrator reads at each validation, every few seconds, while a tumble keeps ~3 samples a second
+            at 50 Hz; one Qhull run on 1000 points costs about as much as five incremental updates).
     """
 
     def __init__(
@@ -91,6 +96,7 @@ class DirectionBuffer:
         radius: float | None = None,
         min_interval_s: float = 0.5,
         hist_bins: int = HIST_BINS,
+        hull_on_read: bool = False,
     ) -> None:
         if not (isinstance(n_bins, int) and 1 <= n_bins <= 100_000):
             msg = f"n_bins must be an int in [1, 100000], got {n_bins!r}"
@@ -114,6 +120,7 @@ class DirectionBuffer:
         self._center = (0.0, 0.0, 0.0)
         self._radius: float | None = None
         self._pts = np.zeros((self.capacity, 3))
+        self.hull_on_read = bool(hull_on_read)
         self._hull = IncrementalHull(self._pts, [], [], [])
         self.clear()
         if center is not None or radius is not None:
@@ -149,6 +156,9 @@ class DirectionBuffer:
         self._n_occupied = 0
         self._hull.clear()
         self._hull.set_lists(self._x, self._y, self._z)
+        self._hull_read = (0.0, 0)  # hull_on_read: (volume, vertices) of the last Qhull run
+        self._hull_stale = False
+        self._hull_runs = 0
         self._cache: Indicators | None = None
         self._offered = self._kept = self._refused = self._invalid = self._evicted = 0
         self._rebins = 0
@@ -180,8 +190,8 @@ class DirectionBuffer:
             "invalid": self._invalid,
             "evicted": self._evicted,
             "rebins": self._rebins,
-            "hull_rebuilds": self._hull.rebuilds,
-            "hull_vertices": self._hull.vertex_count(),
+            "hull_rebuilds": self._hull_runs if self.hull_on_read else self._hull.rebuilds,
+            "hull_vertices": self._hull_state()[1],
         }
 
     @property
@@ -306,7 +316,10 @@ class DirectionBuffer:
         sp[1] += y
         sp[2] += z
         self._scatter_add(dx, dy, dz, 1.0)
-        self._hull.insert(slot, self._mean())
+        if self.hull_on_read:
+            self._hull_stale = True
+        else:
+            self._hull.insert(slot, self._mean())
         self._cache = None
 
     def _remove(self, slot: int) -> None:
@@ -328,7 +341,10 @@ class DirectionBuffer:
         self._free.append(slot)
         if self._scatter_updates >= 4096:
             self._refresh_scatter()
-        self._hull.delete(slot, self._mean())
+        if self.hull_on_read:
+            self._hull_stale = True
+        else:
+            self._hull.delete(slot, self._mean())
         self._cache = None
 
     def _scatter_add(self, dx: float, dy: float, dz: float, sign: float) -> None:
@@ -375,6 +391,24 @@ class DirectionBuffer:
             elif h[k] == 0:
                 self._empty += 1
 
+    def _hull_state(self) -> tuple[float, int]:
+        """(volume, vertex count) of the convex hull of the samples: the incremental hull's, or with
+        ``hull_on_read`` one Qhull run after a change (0 for fewer than 4 or coplanar points)."""
+        if not self.hull_on_read:
+            return self._hull.volume, self._hull.vertex_count()
+        if self._hull_stale:
+            self._hull_stale = False
+            self._hull_runs += 1
+            live = self._live()
+            self._hull_read = (0.0, 0)
+            if len(live) >= 4:
+                try:
+                    h = ConvexHull(self._pts[live])
+                    self._hull_read = (float(h.volume), len(h.vertices))
+                except QhullError:
+                    pass
+        return self._hull_read
+
     def indicators(self) -> Indicators:
         """Current indicators A–D and their normalised versions (cached until the buffer changes)."""
         if self._cache is not None:
@@ -388,7 +422,7 @@ class DirectionBuffer:
         radius = self._radius if self._radius is not None else self._sum_r / n
         self._scatter_flush()
         e_info = _e_info(self._scatter, n, radius)
-        self._cache = _normalise(a, self._empty, c, self._hull.volume, n, radius, self.hist_bins, e_info)
+        self._cache = _normalise(a, self._empty, c, self._hull_state()[0], n, radius, self.hist_bins, e_info)
         return self._cache
 
     # ------------------------------------------------------------------ re-binning
@@ -412,7 +446,9 @@ class DirectionBuffer:
         samples = [(self._t[s], self._x[s], self._y[s], self._z[s]) for s in self._live()]
         self._center = new_center
         counters = (self._offered, self._kept, self._refused, self._invalid, self._evicted, self._rebins + 1)
+        runs = self._hull_runs
         self.clear()
+        self._hull_runs = runs
         self._offered, self._kept, self._refused, self._invalid, self._evicted, self._rebins = counters
         cx, cy, cz = new_center
         by_bin: dict[int, list[tuple[float, float, float, float]]] = {}
@@ -423,7 +459,8 @@ class DirectionBuffer:
                 self._evicted += 1
                 continue
             by_bin.setdefault(self._bin_of(dx, dy, dz, r), []).append((t, x, y, z))
-        self._hull.suspend()
+        if not self.hull_on_read:
+            self._hull.suspend()
         for b, items in by_bin.items():
             self._evicted += max(0, len(items) - self.per_bin)
             keep = items[-self.per_bin :]  # samples are in insertion order: keep the newest
@@ -434,7 +471,8 @@ class DirectionBuffer:
                 self._bins[b].append(slot)
                 dx, dy, dz = x - cx, y - cy, z - cz
                 self._insert(slot, t, x, y, z, dx, dy, dz, math.sqrt(dx * dx + dy * dy + dz * dz))
-        self._hull.resume()
+        if not self.hull_on_read:
+            self._hull.resume()
         _log.debug("re-binned %d samples about %s", len(self), new_center)
 
 

@@ -81,6 +81,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.linalg.lapack import dposv
 from scipy.signal import lfilter
 
 from .calibration import Calibration, FitStats
@@ -390,13 +391,13 @@ def _lm(z: Array, theta: Array, theta0: Array, info0: Array, n: float, s: float,
             h = w * (jt @ jt.T) + info0
             g = w * (jt @ r) + info0 @ dp
         assert g is not None
-        try:
-            step = -np.linalg.solve(h + lam * np.diag(np.diag(h)), g)
-        except np.linalg.LinAlgError:
+        _, x, info = dposv(h + lam * np.diag(np.diag(h)), g)  # Cholesky: the damped H is positive definite
+        if info != 0 or not np.all(np.isfinite(x)):
             lam, nu = lam * nu, 2.0 * nu
             if lam > _LM_LAM_MAX:
                 break
             continue
+        step = -x
         pred = -2.0 * float(g @ step) - float(step @ h @ step)
         if pred <= _LM_FTOL * cost or float(np.linalg.norm(step)) <= _LM_XTOL * (float(np.linalg.norm(theta)) + _LM_XTOL):
             break  # the quadratic model promises (next to) nothing: converged, no evaluation spent on it

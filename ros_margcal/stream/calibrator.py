@@ -119,7 +119,7 @@ class SensorCalibrator(ChangeDetection, Evaluation):
 
         cfg = self.config
         cal = self._cal if keep_calibration and hasattr(self, "_cal") else None
-        self._buffer = DirectionBuffer(n_bins=cfg.n_bins, per_bin=cfg.per_bin)
+        self._buffer = DirectionBuffer(n_bins=cfg.n_bins, per_bin=cfg.per_bin, hull_on_read=True)
         self._gate: Any = None
         if self.sensor == "accel":
             self._gate = GyroAidedGate(window_s=cfg.gate_window_s, cv_threshold=cfg.gate_cv_threshold,

@@ -7,6 +7,7 @@ figures themselves are benchmarks (``python scripts/bench_pipeline.py``), not te
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import numpy as np
@@ -98,3 +99,22 @@ def test_the_trusted_paths_agree_with_the_checked_ones() -> None:
         assert a.push(0.1 * i, v) == b.push_finite(0.1 * i, *v)
     assert a.stats() == b.stats()
     np.testing.assert_array_equal(a.points(), b.points())
+
+
+def test_a_hull_read_on_demand_gives_the_incremental_indicators() -> None:
+    """``hull_on_read`` (one Qhull run per read after a change, the calibrator's buffer) gives the indicators
+    of the incremental hull, through inserts, evictions and a re-binning."""
+    rng = np.random.default_rng(9)
+    pts = rng.normal(size=(3000, 3)) * np.array([1.0, 0.8, 0.3]) + np.array([0.4, -0.2, 0.1])
+    lazy, incremental = DirectionBuffer(hull_on_read=True, per_bin=4), DirectionBuffer(per_bin=4)
+    for i, v in enumerate(pts.tolist()):
+        t = 0.05 * i
+        assert lazy.push_finite(t, *v) == incremental.push_finite(t, *v)
+        if i % 300 == 299:
+            a, b = lazy.indicators(), incremental.indicators()
+            np.testing.assert_allclose(dataclasses.astuple(a), dataclasses.astuple(b), rtol=1e-9, atol=1e-12)
+        if i == 1500:
+            lazy.set_center([0.4, -0.2, 0.1], 1.0)
+            incremental.set_center([0.4, -0.2, 0.1], 1.0)
+    assert lazy.stats()["hull_vertices"] == incremental.stats()["hull_vertices"] > 4
+    assert lazy.stats()["hull_rebuilds"] <= 11  # one Qhull run per read after a change, not per sample
