@@ -28,8 +28,9 @@ by Levenberg-Marquardt on the normal equations (``_lm``) with the *exact* Jacobi
 ``beta = r / |q|^2``. (Dropping the derivative of ``1 / |W u|`` is not harmless: LM then stops where
 ``J^T r = 0`` for the wrong ``J``, an ``O(sigma^2)`` bias per point that does not average out; on a ring it
 moved the weakly determined terms by several sigmas, more the more points.) Starts (unless one is given,
-e.g. a stream's previous solution): the prior and the centres of a sphere of the prior's radius through
-the data (two on a ring, where the vertical centre is fixed by the norm only up to its sign); the
+e.g. a stream's previous solution): the centres of a sphere of the prior's radius through the data (two on
+a ring, where the vertical centre is fixed by the norm only up to its sign), and the prior unless the data
+determine that centre (an LM run from a far prior offset then only crawls to the same optimum); the
 lowest posterior cost wins, every start judged at the lowest sigma found. ``sigma`` is re-estimated
 from the residuals (MAD) between solves unless given. The
 posterior covariance is ``P = H^-1`` with ``H = J^T J / sigma^2 + P_0^-1`` at the solution (the information
@@ -326,16 +327,19 @@ def _coloured_information(jt: Array, r: Array) -> Array:
 
 
 def _starts(pts: Array, theta0: Array, radius: float) -> list[Array]:
-    """The prior, and the prior's matrix about each centre of a radius-``radius`` sphere through the data."""
-    starts = [theta0]
-    for c in _sphere_centres(pts, radius):
+    """The prior's matrix about each centre of a radius-``radius`` sphere through the data, and the prior
+    itself unless the data determine that centre (a cap or more: the sphere's centre lies in the optimum's
+    valley, and an LM run from a far prior offset crawls for its whole budget to reach it)."""
+    centres, determined = _sphere_centres(pts, radius)
+    starts = [] if determined else [theta0]
+    for c in centres:
         th = theta0.copy()
         th[:3] = c
         starts.append(th)
     return starts
 
 
-def _sphere_centres(pts: Array, radius: float) -> list[Array]:
+def _sphere_centres(pts: Array, radius: float) -> tuple[list[Array], bool]:
     """Centres ``c`` of ``|v - c| = radius`` through the points: linear in ``(c, |c|^2)``; on data that leave
     one direction free (a ring) the constraint ``u = |c|^2`` gives the two centres along it."""
     a = np.c_[2.0 * pts, -np.ones(len(pts))]
@@ -344,15 +348,15 @@ def _sphere_centres(pts: Array, radius: float) -> list[Array]:
     scale[scale == 0] = 1.0
     u, sv, vt = np.linalg.svd(a / scale, full_matrices=False)
     if not np.all(np.isfinite(sv)) or sv[0] <= 0:
-        return []
+        return [], False
     if sv[-1] > 1e-3 * sv[0]:
-        return [(vt.T @ ((u.T @ y) / sv) / scale)[:3]]
+        return [(vt.T @ ((u.T @ y) / sv) / scale)[:3]], True
     x0 = vt[:3].T @ ((u[:, :3].T @ y) / sv[:3]) / scale
     w = vt[3] / scale
     qa, qb, qc = w[:3] @ w[:3], 2.0 * x0[:3] @ w[:3] - w[3], x0[:3] @ x0[:3] - x0[3]
     disc = qb * qb - 4.0 * qa * qc
     ts = [-qb / (2.0 * qa)] if disc < 0 else [(-qb + sg * math.sqrt(disc)) / (2.0 * qa) for sg in (1.0, -1.0)]
-    return [x0[:3] + t * w[:3] for t in ts]
+    return [x0[:3] + t * w[:3] for t in ts], False
 
 
 def _solve(z: Array, start: Array, theta0: Array, info0: Array, n: float, sigma: float | None, floor: float,
