@@ -4,9 +4,9 @@ The value ``Calibration`` (h = W (v - b), Camps et al. 2009 Eq. 2, norm |h|) and
 (``calibration_file``, strict field readers in ``fields``); the fits of ``fitting``: ``sphere`` and
 ``lin_auto`` (Gietzelt et al. 2013, Eqs. 5-17, in ``fitting_linear``), ``lm`` (Camps et al. 2009,
 Eqs. 6-12), with ``fitting_core`` holding the shared Gauss-Newton pieces; the MAP fit with a prior
-that updates only what the data determine (``fitting_prior``) and the heading error predicted from a
-calibration's covariance (``heading``). Everything else builds on this package; it imports nothing of
-the rest.
+that updates only what the data determine (``fitting_prior``, with the coloured-noise model of its time
+series in ``fitting_noise``) and the heading error predicted from a calibration's covariance
+(``heading``). Everything else builds on this package; it imports nothing of the rest.
 """
 
 from __future__ import annotations
@@ -24,9 +24,9 @@ from .fitting_core import (
 )
 from .fitting_linear import algebraic, lin_auto, lin_auto_fit, mvee, sphere, sqrt_pd
 from .fitting_prior import (
-    BROAD_MATRIX_STD, BROAD_OFFSET_STD, UPDATED_VARIANCE_RATIO, PriorFit, broad_prior, fit_with_prior
+    BROAD_MATRIX_STD, BROAD_OFFSET_STD, UPDATED_VARIANCE_RATIO, PriorFit, broad_prior, fit_with_prior, posterior_at
 )
-from .heading import attitudes, heading_p95, inclination_deg
+from .heading import attitudes, heading_p95, heading_std_deg, inclination_deg
 
 __all__ = [
     "BROAD_MATRIX_STD", "BROAD_OFFSET_STD", "LOSSES", "METHODS", "MODELS", "N_PARAMS", "OFF",
@@ -34,7 +34,7 @@ __all__ = [
     "DegenerateDataError", "FitStats", "InputError", "MargCalError", "Prepared", "PriorFit", "RecordingError",
     "abs_model", "algebraic", "as_points", "as_vector3", "attitudes", "broad_prior", "calibration_from_yaml",
     "calibration_to_yaml", "check_geometry", "check_singular", "finish", "fit", "fit_with_prior",
-    "gn_covariance", "gram", "heading_p95", "inclination_deg", "lin_auto", "lin_auto_fit", "load_calibrations",
-    "mad_sigma", "mvee", "one_line", "pack", "parameter_names", "prepare", "raw_scale", "residuals", "resjac",
+    "gn_covariance", "gram", "heading_p95", "heading_std_deg", "inclination_deg", "lin_auto", "lin_auto_fit", "load_calibrations",
+    "mad_sigma", "mvee", "one_line", "pack", "parameter_names", "posterior_at", "prepare", "raw_scale", "residuals", "resjac",
     "save_calibrations", "solve_spd3", "sphere", "sqrt_pd", "unpack"
 ]

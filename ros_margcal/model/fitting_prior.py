@@ -83,11 +83,11 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.linalg.lapack import dposv
-from scipy.signal import lfilter
 
 from .calibration import Calibration, FitStats
 from .errors import ConvergenceError, DegenerateDataError, InputError, as_points
 from .fitting_core import mad_sigma, pack, parameter_names, resjac, unpack
+from .fitting_noise import coloured_information
 
 __all__ = ["BROAD_MATRIX_STD", "BROAD_OFFSET_STD", "UPDATED_VARIANCE_RATIO", "PriorFit", "broad_prior", "fit_with_prior",
            "posterior_at"]
@@ -106,11 +106,6 @@ _LM_FTOL = 1e-9
 _LM_XTOL = 1e-10
 _LM_LAM_MAX = 1e12
 _OFF_J, _OFF_K = [0, 0, 1], [1, 2, 2]  # (x, y), (x, z), (y, z): the off-diagonal entries of W
-_NOISE_RHO_MIN = 0.1
-"""The residual autocorrelation below which a lag is not used to fit the coloured noise."""
-_MAX_NOISE_LAG = 400
-_PHI_MAX = 0.995
-_C_MAX = 0.99
 
 
 @dataclass(frozen=True)
@@ -244,7 +239,7 @@ def fit_with_prior(points: ArrayLike, prior: Calibration, *, sigma: float | None
     s_ref = min(sol[1] for sol in sols)  # every start judged under one noise level: the lowest
     theta, s, iters = min(sols, key=lambda sol: _cost(z, sol[0], theta0, chol, n0, s_ref))
     r, jt = _geometric(z, theta, n0)
-    data_info = _coloured_information(jt, r) if time_ordered else jt @ jt.T / (s * s)
+    data_info = coloured_information(jt, r) if time_ordered else jt @ jt.T / (s * s)
     post = np.linalg.inv(data_info + info0)[:9, :9]
     post = 0.5 * (post + post.T)
     prior_var = np.diag(np.linalg.inv(info0))[:9]
@@ -288,42 +283,6 @@ def _geometric(z: Array, theta: Array, n: float) -> tuple[Array, Array]:
     if theta.size == 10:
         jt[9] = -rho / qn
     return r, jt
-
-
-def _noise_model(r: Array) -> tuple[float, float] | None:
-    """White plus AR(1) noise fitted to the residuals' autocorrelation ``rho_l = c phi^l`` (module docstring):
-    ``(c, phi)``, or None when the residuals look white."""
-    rc = r - r.mean()
-    m = len(rc)
-    max_lag = min(m // 10, _MAX_NOISE_LAG)
-    if max_lag < 2:
-        return None
-    f = np.fft.rfft(rc, 2 * m)
-    acf = np.fft.irfft(f * np.conj(f), 2 * m)[: max_lag + 1]
-    if not acf[0] > 0:
-        return None
-    rho = acf[1:] / acf[0]
-    if rho[0] < _NOISE_RHO_MIN or rho[1] <= 0:
-        return None
-    below = np.flatnonzero(rho < _NOISE_RHO_MIN)
-    lags = np.arange(1, max(int(below[0]) if below.size else max_lag, 2) + 1)
-    slope, icpt = np.polyfit(lags, np.log(np.maximum(rho[: lags.size], 1e-6)), 1)
-    return float(min(math.exp(icpt), _C_MAX)), float(min(math.exp(slope), _PHI_MAX))
-
-
-def _coloured_information(jt: Array, r: Array) -> Array:
-    """Data information ``A B^-1 A`` of time-ordered residuals under the white plus AR(1) noise fitted to them:
-    ``A = J^T J``, ``B = J^T Sigma J``, ``Sigma_ij = s^2 ((1 - c) delta_ij + c phi^|i-j|)`` (module docstring)."""
-    a = jt @ jt.T
-    var = float(np.mean((r - r.mean()) ** 2))
-    model = _noise_model(r)
-    if model is None:
-        return a / var
-    c, phi = model
-    fwd = lfilter([1.0], [1.0, -phi], jt, axis=-1)  # sum_(j <= i) phi^(i-j) J_j
-    bwd = lfilter([1.0], [1.0, -phi], jt[:, ::-1], axis=-1)[:, ::-1]  # sum_(j >= i)
-    b = var * ((1.0 - c) * a + c * (jt @ (fwd + bwd - jt).T))
-    return a @ np.linalg.solve(0.5 * (b + b.T), a)
 
 
 def _starts(pts: Array, theta0: Array, radius: float) -> list[Array]:

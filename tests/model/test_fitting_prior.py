@@ -13,6 +13,7 @@ from ros_margcal import Calibration, fit
 from ros_margcal.model import fitting_prior as fp
 from ros_margcal.model.errors import InputError
 from ros_margcal.model.fitting_core import pack
+from ros_margcal.model.fitting_noise import coloured_information, noise_model
 from ros_margcal.model.fitting_prior import NAMES, broad_prior, fit_with_prior
 from ros_margcal.model.heading import heading_p95, inclination_deg
 from ros_margcal.sim.simulation import directions, random_sensor, simulate
@@ -184,18 +185,18 @@ def test_the_noise_model_recovers_white_plus_ar1() -> None:
     for i in range(1, m):
         ar[i] = phi * ar[i - 1] + innov[i]
     x = math.sqrt(c) * ar + math.sqrt(1 - c) * rng.normal(size=m)
-    model = fp._noise_model(x)
+    model = noise_model(x)
     assert model is not None
     assert model[0] == pytest.approx(c, abs=0.1) and model[1] == pytest.approx(phi, abs=0.03)
-    assert fp._noise_model(rng.normal(size=m)) is None
+    assert noise_model(rng.normal(size=m)) is None
     jt = rng.normal(size=(3, 300))
     r = x[:300]
-    cm, ph = fp._noise_model(r) or (0.0, 0.0)
+    cm, ph = noise_model(r) or (0.0, 0.0)
     lags = np.abs(np.subtract.outer(np.arange(300), np.arange(300)))
     sigma = np.mean((r - r.mean()) ** 2) * ((1 - cm) * np.eye(300) + cm * ph**lags)
     a = jt @ jt.T
     expected = a @ np.linalg.solve(jt @ sigma @ jt.T, a)
-    np.testing.assert_allclose(fp._coloured_information(jt, r), expected, rtol=1e-8)
+    np.testing.assert_allclose(coloured_information(jt, r), expected, rtol=1e-8)
 
 
 def test_an_uncertain_norm_is_estimated_and_widens_the_covariance(independent: ModuleType) -> None:
