@@ -15,7 +15,7 @@ estimate and the decision live in ``observable`` (see its docstring). Here:
   the last attempt by a quarter (``PARTIAL_GROWTH``), or by what that attempt's refusal asks for (up to
   doubling, ``PARTIAL_GROWTH_MAX``: a heading error 3x its limit or a third of the azimuths turned
   through is not retried after a few more samples; a published partial calibration is refitted once the
-  series doubled: its heading error falls by a factor sqrt(2) at most meanwhile), which overrides the skip
+  series grew by half, ``REFIT_GROWTH``), which overrides the skip
   rule's back-off (a ground robot's buffer stops changing, its series does not);
 - the noise of the last series fit's residuals and its solution, given to the next series fit (one solve
   from that one start instead of three from each of two or three); the early fits take the last early
@@ -58,6 +58,9 @@ class PartialCalibration:
     EARLY_POINTS = 100
     """An early fit takes the recent samples as at most this many block means (a tumble's first seconds at
     50 Hz: blocks of up to 5 samples, 0.1 s): the same information for white noise, a fifth of the work."""
+    REFIT_GROWTH = 0.5
+    """A published partial calibration is refitted once the series grew by this share (its heading error
+    falls by about a fifth meanwhile; refitting at every quarter cost twice the fits for little)."""
     EARLY_MAX_ITER = 50
     """Evaluations per solve of an early fit (a start that needs more crawls along a wrong valley)."""
     PARTIAL_GROWTH = 0.25
@@ -204,7 +207,7 @@ class PartialCalibration:
             self._partial_noise(job)
             res: PartialResult = job["result"]
             self._partial, self._partial_note = res, ""
-            self._partial_growth = self.PARTIAL_GROWTH_MAX  # a refit once the series doubled (module docstring)
+            self._partial_growth = self.REFIT_GROWTH  # a refit once the series grew by this share (module docstring)
             self._figures = res.figures
             return (f"; partial: updated {','.join(res.updated) or 'none'}, from the {res.prior_kind} prior "
                     f"{','.join(res.from_prior) or 'none'}; heading p95 {res.heading_seen_deg:.2f} deg at the tilt seen "

@@ -53,6 +53,7 @@ def test_partial_fits_wait_for_what_a_refusal_asks(ground: dict[str, Any], monke
     data, not after a fixed quarter: half the fits, and the first calibration within 10 % of the time."""
     _, adaptive, first = _run(ground, monkeypatch)
     monkeypatch.setattr(PartialCalibration, "PARTIAL_GROWTH_MAX", PartialCalibration.PARTIAL_GROWTH)
+    monkeypatch.setattr(PartialCalibration, "REFIT_GROWTH", PartialCalibration.PARTIAL_GROWTH)
     _, fixed, first_fixed = _run(ground, monkeypatch)
     assert first is not None and first_fixed is not None
     assert first <= 1.1 * first_fixed, (first, first_fixed)
