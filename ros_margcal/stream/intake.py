@@ -181,14 +181,8 @@ class Intake:
             return "bad_stamp"
         mag = math.sqrt(x * x + y * y + z * z)
         cfg = self.config
-        learnt = self._learnt
-        learning = learnt is None and cfg.learn_magnitude_samples > 0
-        if learning:
-            lo, hi = 0.0, cfg.max_magnitude
-        elif learnt is not None:
-            lo, hi = learnt[1], learnt[2]
-        else:
-            lo, hi = cfg.min_magnitude, cfg.max_magnitude
+        learning = self.learning
+        lo, hi = (0.0, cfg.max_magnitude) if learning else self.limits
         if mag <= lo:
             self.last_magnitude = mag
             return "zero"

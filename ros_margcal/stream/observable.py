@@ -199,11 +199,11 @@ def partial_fit(series: Array, prior: Calibration | None, cfg: PipelineConfig, *
             inflate = cfg.prior_inflate
         # an estimated norm is a tenth parameter with its own uncertainty (module docstring)
         norm_std = NORM_REL_STD if (sensor == "mag" and not cfg.reference_norm and kind == "broad") else 0.0
-        pf = fit_with_prior(series, prior, inflate=inflate, stamp=stamp, time_ordered=True, norm_rel_std=norm_std,
-                            sigma=sigma, max_iter=max_iter, start=start)
-        if sigma is not None and not abs(pf.residual_sigma / sigma - 1.0) <= sigma_tolerance:
+        for noise in (sigma, None) if sigma is not None else (None,):
             pf = fit_with_prior(series, prior, inflate=inflate, stamp=stamp, time_ordered=True, norm_rel_std=norm_std,
-                                max_iter=max_iter, start=start)
+                                sigma=noise, max_iter=max_iter, start=start)
+            if noise is None or abs(pf.residual_sigma / noise - 1.0) <= sigma_tolerance:
+                break  # the given noise fits the residuals (else: again with the noise estimated)
         cal = pf.calibration
         if sensor != "mag":
             return PartialResult(cal, pf.updated, pf.from_prior, kind, math.nan, math.inf, None,

@@ -98,7 +98,8 @@ class PartialCalibration:
         self._partial_start: Calibration | None = None  # ... and its solution, the next one's start
 
     def _cadence(self) -> tuple[int, float]:
-        """(samples, seconds) between evaluations: ``recheck_interval_s`` while calibrated by the full
+        """(samples, seconds) between evaluations, never fewer than ``refit_every // 2`` samples (the
+        calibrator's sample path tests that bound before calling this): ``recheck_interval_s`` while calibrated by the full
         path, else ``refit_min_interval_s`` (also under a MAP calibration, so the full path takes over as
         soon as it would have), shortened while an early fit is close (``EARLY_CLOSE``). One microsecond
         less, so stamps that went through sec/nanosec (the node) give the cadence of float stamps (replay)."""
@@ -131,12 +132,10 @@ class PartialCalibration:
         cfg = self.config
         limit = max(cfg.early_heading_p95_deg, cfg.max_heading_p95_deg)
         self._early_close = res is not None and res.heading_seen_deg <= self.EARLY_CLOSE * limit
-        grow = self.PARTIAL_GROWTH
-        if job.get("early") and res is not None and res.over_limit:
-            pass  # an early fit's heading figure improves much faster than 1/samples (a tumble's coverage grows)
-        elif res is not None and res.over_limit and math.isfinite(res.heading_seen_deg):
+        grow = self.PARTIAL_GROWTH  # also for an early fit's heading refusal: a tumble's figure falls fast
+        if res is not None and res.over_limit and not job.get("early") and math.isfinite(res.heading_seen_deg):
             grow = res.heading_seen_deg / res.over_limit - 1.0
-        elif res is not None and 0.0 < res.azimuth < cfg.partial_min_azimuth:
+        elif res is not None and not res.over_limit and 0.0 < res.azimuth < cfg.partial_min_azimuth:
             grow = cfg.partial_min_azimuth / res.azimuth - 1.0  # turning adds azimuths about linearly in time
         self._partial_growth = min(max(grow, self.PARTIAL_GROWTH), self.PARTIAL_GROWTH_MAX)
 
