@@ -8,8 +8,10 @@ yaw, level and with roll/pitch in {-30, 0, 30} deg, tilt compensation with the t
 - ``ground``: yaw turning with |roll|, |pitch| <= 5 and 20 deg, 300 s at 50 Hz, 30 uT hard iron, a few
   per cent symmetric soft iron. Seeds 1-3, 11-13 were used while designing; 100-109 are held out and
   reported separately (they were seen once a session while changing the stream: not pristine);
-  ``--fresh`` adds seeds 300-309 with 20 uT hard iron (a seed range and magnitude no decision looked at,
-  run once at the end of the session that added them). Per case: time of the first calibration, its measured level p95, the worst
+  ``--fresh`` adds seeds 300-309 with 20 uT hard iron (a seed range and magnitude no decision looked at
+  when they were added; run three times in that session, each after changes decided on the other seeds)
+  and seeds 600-609 with 25 uT (added later, run once at the end of the session that added them).
+  Per case: time of the first calibration, its measured level p95, the worst
   published level p95, and at the end the measured / predicted level and 30 deg p95 and their ratio.
 - ``tumble``: time to the first calibration and to the first with a measured 30 deg p95 <= 1 deg (median).
 - ``hemisphere``, ``band`` (+-20 deg), ``jump`` (20 uT hard-iron jump at 60 s of a tumble): final
@@ -35,8 +37,8 @@ from ros_margcal.stream.calibrator import EventKind, PipelineConfig, SensorCalib
 
 TUNING = (1, 2, 3, 11, 12, 13)
 HELD_OUT = tuple(range(100, 110))
-FRESH = tuple(range(300, 310))
-FRESH_HARD_IRON = 20e-6
+FRESH = {"fresh": (tuple(range(300, 310)), 20e-6), "fresh-2": (tuple(range(600, 610)), 25e-6)}
+"""Fresh groups: seeds and hard iron."""
 OVERRIDES: dict[str, Any] = {}
 """Options of the magnetometer calibrator (``--set name=value``)."""
 
@@ -78,16 +80,15 @@ def _span(r: np.ndarray) -> str:
 
 
 def ground(gen: Any, quick: bool, seconds: float, fresh: bool = False) -> None:
-    print(f"ground robot, {seconds:.0f} s at 50 Hz, 30 uT hard iron (independent generator)")
+    print(f"ground robot, {seconds:.0f} s at 50 Hz, 30 uT hard iron (fresh groups: 20 and 25 uT; independent generator)")
     print(f"  {'seeds':9s} {'tilt':>4s} {'calibrated':>10s} {'first s':>8s} {'first lvl':>9s} {'worst lvl':>9s} "
           f"{'end lvl meas/pred':>18s} {'max end lvl':>11s} {'end 30deg meas/pred':>20s} {'pred/meas lvl':>14s} "
           f"{'pred/meas 30':>13s} {'upd':>4s}")
-    groups = {"tuning": TUNING[:2] if quick else TUNING, "held-out": HELD_OUT[:2] if quick else HELD_OUT}
-    if fresh:
-        groups["fresh"] = FRESH[:2] if quick else FRESH
-    for name, seeds in groups.items():
+    groups = {"tuning": (TUNING, 30e-6), "held-out": (HELD_OUT, 30e-6)} | (FRESH if fresh else {})
+    for name, (all_seeds, hard_iron) in groups.items():
+        seeds = all_seeds[:2] if quick else all_seeds
         for tilt in (5.0, 20.0):
-            rows = [ground_case(gen, s, tilt, seconds, FRESH_HARD_IRON if name == "fresh" else 30e-6) for s in seeds]
+            rows = [ground_case(gen, s, tilt, seconds, hard_iron) for s in seeds]
             col = {k: np.array([r[k] for r in rows]) for k in rows[0]}
             ok = np.isfinite(col["first"])
             med = {k: (float(np.median(v[ok])) if ok.any() else np.nan) for k, v in col.items()}
@@ -175,7 +176,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--quick", action="store_true", help="two seeds per group")
     p.add_argument("--seconds", type=float, default=300.0, help="ground-robot recording length")
     p.add_argument("--only", choices=("ground", "rich", "accel"), help="one group of cases")
-    p.add_argument("--fresh", action="store_true", help="also the fresh ground-robot seeds 300-309 (20 uT hard iron)")
+    p.add_argument("--fresh", action="store_true",
+                   help="also the fresh ground-robot seeds 300-309 (20 uT hard iron) and 600-609 (25 uT)")
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                    help="a magnetometer option, e.g. max_heading_p95_deg=2.5 (a number or true/false)")
     args = p.parse_args(argv)

@@ -8,9 +8,14 @@ final state and why, the time to its first calibration, and, where both calibrat
 difference in % of the field and the heading p95 of the stream's calibration against the batch fit's
 (level and 30° tilt, 60° inclination, 72 yaws; magnetometer only).
 
+``--soft-iron``: instead, the shape of each full-sphere magnetometer's batch fit (``sym``, ``lm``): its
+matrix over the mean of its diagonal, minus the identity: how far real sensors' gains and cross terms
+are from isotropic, the scale the broad prior's matrix standard deviation
+(``model.fitting_prior.BROAD_MATRIX_STD``) must cover for the terms a ground robot cannot see.
+
 Usage::
 
-    python scripts/study_real_recordings.py [--data DIR] [--markdown]
+    python scripts/study_real_recordings.py [--data DIR] [--markdown] [--soft-iron]
 """
 
 from __future__ import annotations
@@ -119,6 +124,21 @@ def study(path: Path) -> dict[str, object]:
     return row
 
 
+def soft_iron_survey(data: Path) -> None:
+    """Print each full-sphere magnetometer's matrix deviation from isotropic (module docstring)."""
+    print(f"{'recording':42s} {'w_xx':>6s} {'w_yy':>6s} {'w_zz':>6s} {'w_xy':>6s} {'w_xz':>6s} {'w_yz':>6s}  "
+          f"{'z gain vs x, y':>14s}")
+    for name in sorted(UNITS):
+        if not (name.endswith("_mag.csv") and ("full_sphere" in name or "undisturbed" in name)) or not (data / name).exists():
+            continue
+        rec = read_recording(data / name, sensor="mag")
+        w = fit(rec.raw, model="sym", method="lm").matrix
+        dev = w / np.mean(np.diag(w)) - np.eye(3)
+        z_vs_h = w[2, 2] / (0.5 * (w[0, 0] + w[1, 1])) - 1.0
+        print(f"{name:42s} " + " ".join(f"{100 * v:+5.1f}%" for v in (*np.diag(dev), dev[0, 1], dev[0, 2], dev[1, 2]))
+              + f"  {100 * z_vs_h:+13.1f}%")
+
+
 def _f(x: object, fmt: str) -> str:
     return "—" if x is None else fmt.format(x)
 
@@ -127,10 +147,14 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=DATA)
     ap.add_argument("--markdown", action="store_true", help="print a README table")
+    ap.add_argument("--soft-iron", action="store_true", help="the full-sphere magnetometers' matrix shapes instead")
     args = ap.parse_args(argv)
     if not args.data.is_dir():
         print(f"no real recordings at {args.data}", file=sys.stderr)
         return 1
+    if args.soft_iron:
+        soft_iron_survey(args.data)
+        return 0
     rows = [study(args.data / name) for name in sorted(UNITS) if (args.data / name).exists()]
     print("| recording | unit | stream | first calibration | why (final status) | batch fit | offset diff | "
           "heading p95 level / 30° |")

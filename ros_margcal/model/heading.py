@@ -31,7 +31,7 @@ from .calibration import Calibration
 from .errors import InputError
 from .fitting_core import parameter_names
 
-__all__ = ["attitudes", "heading_p95", "heading_std_deg", "inclination_deg"]
+__all__ = ["attitudes", "heading_gradient", "heading_p95", "heading_std_deg", "inclination_deg"]
 
 Array = NDArray[np.float64]
 
@@ -84,6 +84,17 @@ def _heading_gradient(w: Array, d: Array, rot: Array) -> Array:
     return grad
 
 
+def heading_gradient(cal: Calibration, rot: Array, *, inclination: float = 60.0) -> Array:
+    """Sensitivity of the heading (degrees per parameter unit) to the symmetric parameters at each attitude
+    ``rot`` (K, 3, 3 body -> world): (K, 9), on the reading ``cal`` predicts there (module docstring)."""
+    rot = np.asarray(rot, dtype=np.float64).reshape(-1, 3, 3)
+    inc = math.radians(inclination)
+    m = cal.norm * np.array([0.0, math.cos(inc), -math.sin(inc)])
+    body = np.einsum("kji,j->ki", rot, m)  # R^T m
+    raw = np.linalg.solve(cal.matrix, body.T).T + cal.offset
+    return np.degrees(_heading_gradient(cal.matrix, raw - cal.offset, rot))
+
+
 def heading_std_deg(cal: Calibration, rot: Array, *, inclination: float = 60.0) -> Array:
     """Predicted standard deviation (degrees) of the heading error of ``cal`` at each attitude ``rot``
     (K, 3, 3 body -> world): ``sqrt(g^T C g)`` (module docstring).
@@ -94,15 +105,9 @@ def heading_std_deg(cal: Calibration, rot: Array, *, inclination: float = 60.0) 
     if cal.covariance is None or tuple(cal.parameter_names) != _NAMES:
         msg = f"heading error needs a covariance over {_NAMES}"
         raise InputError(msg)
-    cov = np.asarray(cal.covariance, dtype=np.float64)
-    rot = np.asarray(rot, dtype=np.float64).reshape(-1, 3, 3)
-    inc = math.radians(inclination)
-    m = cal.norm * np.array([0.0, math.cos(inc), -math.sin(inc)])
-    body = np.einsum("kji,j->ki", rot, m)  # R^T m
-    raw = np.linalg.solve(cal.matrix, body.T).T + cal.offset
-    grad = _heading_gradient(cal.matrix, raw - cal.offset, rot)
-    var = np.einsum("ki,ij,kj->k", grad, cov, grad)
-    return np.degrees(np.sqrt(np.clip(var, 0.0, None)))
+    grad = heading_gradient(cal, rot, inclination=inclination)
+    var = np.einsum("ki,ij,kj->k", grad, np.asarray(cal.covariance, dtype=np.float64), grad)
+    return np.sqrt(np.clip(var, 0.0, None))
 
 
 def heading_p95(cal: Calibration, *, tilt_deg: float = 0.0, inclination: float = 60.0, n_yaw: int = 72) -> float:

@@ -72,7 +72,8 @@ from ..model.fitting_prior import broad_prior, fit_with_prior, posterior_at
 from ..model.heading import heading_p95, inclination_deg
 from .config import PipelineConfig, guard_rails
 
-__all__ = ["DEFAULT_INCLINATION_DEG", "SIGMA_REUSE_TOLERANCE", "HeadingFigures", "PartialResult", "azimuth_coverage",
+__all__ = ["AZIMUTH_SECTORS", "DEFAULT_INCLINATION_DEG", "SIGMA_REUSE_TOLERANCE", "HeadingFigures", "PartialResult",
+           "azimuth_coverage", "azimuth_sector", "azimuth_sectors",
            "heading_figures", "partial_fit", "sphere_radius", "tilt_seen_deg"]
 
 Array = NDArray[np.float64]
@@ -143,11 +144,25 @@ def tilt_seen_deg(cal: Calibration, raw: Array) -> float:
     return float(0.5 * (hi - lo))
 
 
-def azimuth_coverage(cal: Calibration, raw: Array, sectors: int = 36) -> float:
-    """Share of ``sectors`` azimuth sectors (about the body z axis) that the calibrated field visits."""
+AZIMUTH_SECTORS = 36
+"""Azimuth sectors (about the body z axis) of ``azimuth_coverage``."""
+
+
+def azimuth_sectors(cal: Calibration, raw: Array) -> Array:
+    """The azimuth sector (0 .. ``AZIMUTH_SECTORS - 1``) of each calibrated reading (see ``azimuth_sector``)."""
     h = cal.apply(raw)
-    k = np.floor((np.arctan2(h[:, 1], h[:, 0]) + math.pi) / (2.0 * math.pi) * sectors).astype(int) % sectors
-    return len(np.unique(k)) / sectors
+    return np.floor((np.arctan2(h[:, 1], h[:, 0]) + math.pi) / (2.0 * math.pi) * AZIMUTH_SECTORS).astype(int) % AZIMUTH_SECTORS
+
+
+def azimuth_sector(hx: float, hy: float) -> int:
+    """The azimuth sector of one calibrated reading's horizontal part: ``azimuth_sectors`` for one sample
+    without numpy's per-call cost (the stream's per-sample path)."""
+    return int((math.atan2(hy, hx) + math.pi) / (2.0 * math.pi) * AZIMUTH_SECTORS) % AZIMUTH_SECTORS
+
+
+def azimuth_coverage(cal: Calibration, raw: Array) -> float:
+    """Share of the ``AZIMUTH_SECTORS`` azimuth sectors (about the body z axis) that the calibrated field visits."""
+    return len(np.unique(azimuth_sectors(cal, raw))) / AZIMUTH_SECTORS
 
 
 def _inclination(cfg: PipelineConfig, cal: Calibration, raw: Array | None) -> float:
@@ -174,6 +189,7 @@ def heading_figures(cal: Calibration, points: Array, cfg: PipelineConfig) -> tup
 
 
 def partial_fit(series: Array, prior: Calibration | None, cfg: PipelineConfig, *, recent: Array,
+                spread: Array | None = None,
                 current: Calibration | None, stamp: float, sensor: str,
                 current_heading: float | None = None, sigma: float | None = None, max_iter: int = 200,
                 start: Calibration | None = None, sigma_tolerance: float = SIGMA_REUSE_TOLERANCE) -> PartialResult:
@@ -183,7 +199,8 @@ def partial_fit(series: Array, prior: Calibration | None, cfg: PipelineConfig, *
     per start instead of three: ~5x cheaper) unless the residuals at the solution disagree by more than
     ``sigma_tolerance``, when the fit is repeated with the noise estimated. ``max_iter``: evaluations
     per solve (an early fit's start that needs more is in a flat, wrong valley: another start wins).
-    ``start``: the previous fit on the same series, the one start of the MAP fit (``fit_with_prior``)."""
+    ``start``: the previous fit on the same series, the one start of the MAP fit (``fit_with_prior``).
+    ``spread``: when ``series`` holds block means, each block's spread (``fit_with_prior(spread=...)``)."""
     kind = "previous" if prior is not None else "broad"
     try:
         if prior is not None and (prior.covariance is None or tuple(prior.parameter_names) != SYM_NAMES):
@@ -201,7 +218,7 @@ def partial_fit(series: Array, prior: Calibration | None, cfg: PipelineConfig, *
         norm_std = NORM_REL_STD if (sensor == "mag" and not cfg.reference_norm and kind == "broad") else 0.0
         for noise in (sigma, None) if sigma is not None else (None,):
             pf = fit_with_prior(series, prior, inflate=inflate, stamp=stamp, time_ordered=True, norm_rel_std=norm_std,
-                                sigma=noise, max_iter=max_iter, start=start)
+                                sigma=noise, max_iter=max_iter, start=start, spread=spread)
             if noise is None or abs(pf.residual_sigma / noise - 1.0) <= sigma_tolerance:
                 break  # the given noise fits the residuals (else: again with the noise estimated)
         cal = pf.calibration

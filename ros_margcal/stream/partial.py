@@ -41,7 +41,17 @@ from numpy.typing import NDArray
 
 from ..model.calibration import Calibration
 from .config import PipelineConfig
-from .observable import SIGMA_REUSE_TOLERANCE, SYM_NAMES, HeadingFigures, PartialResult, heading_figures, partial_fit
+from .observable import (
+    AZIMUTH_SECTORS,
+    SIGMA_REUSE_TOLERANCE,
+    SYM_NAMES,
+    HeadingFigures,
+    PartialResult,
+    azimuth_sector,
+    azimuth_sectors,
+    heading_figures,
+    partial_fit,
+)
 
 __all__ = ["PartialCalibration"]
 
@@ -70,9 +80,12 @@ class PartialCalibration:
     (clipped to [PARTIAL_GROWTH, this]) at which an error falling as 1/samples would pass (it falls as
     1/sqrt(samples) at worst; on a ground robot about as 1/samples, as turns and tilt wobble add up); after
     one refused on the azimuths turned through, ``a`` < ``A``, the share ``A / a - 1`` (turning adds azimuths
-    about linearly in time). A fit far from passing is not retried after a few more samples (each costs
-    tens of ms). Early fits (the first seconds, on the recent samples) refused on their heading figure keep
-    the quarter: a tumble's coverage, and with it the heading figure, improves much faster than that."""
+    about linearly in time), or sooner: the refused fit's calibration watches the azimuth of each new series
+    point, and the fit is due as soon as they fill ``A`` (a robot that drove straight and then turns
+    completes its turns in seconds, not in proportion to the time it drove). A fit far from passing is
+    not retried after a few more samples (each costs tens of ms). Early fits (the first seconds, on the
+    recent samples) refused on their heading figure keep the quarter: a tumble's coverage, and with it the
+    heading figure, improves much faster than that."""
     sensor: str
     config: PipelineConfig
     _cal: Calibration | None
@@ -81,9 +94,9 @@ class PartialCalibration:
 
     def _partial_reset(self) -> None:
         cfg = self.config
-        self._series: deque[tuple[float, float, float]] = deque(maxlen=cfg.partial_samples)
+        self._series: deque[tuple[float, float, float, float]] = deque(maxlen=cfg.partial_samples)  # mean, spread
         self._series_t = -math.inf
-        self._series_acc = [0.0, 0.0, 0.0, 0.0]  # sums of x, y, z and the count since the last series sample
+        self._series_acc = [0.0, 0.0, 0.0, 0.0, 0.0]  # sums of x, y, z, x^2 + y^2 + z^2, the count
         self._series_count = 0
         self._series_at_attempt = -1
         self._series_len_at_attempt = 0
@@ -96,6 +109,8 @@ class PartialCalibration:
         self._early_sigma: float | None = None  # the residual noise of the last early fit
         self._partial_sigma: float | None = None  # the residual noise of the last fit on the series ...
         self._partial_start: Calibration | None = None  # ... and its solution, the next one's start
+        self._az_watch: tuple[Any, ...] | None = None  # after an azimuth refusal: its W rows x, y and offset
+        self._az_seen: set[int] = set()  # ... and the sectors the series visited under it
 
     def _cadence(self) -> tuple[int, float]:
         """(samples, seconds) between evaluations, never fewer than ``refit_every // 2`` samples (the
@@ -128,6 +143,7 @@ class PartialCalibration:
 
     def _partial_close(self, job: dict[str, Any]) -> None:
         self._partial_noise(job)
+        self._az_watch = None
         res: PartialResult | None = job.get("result")
         cfg = self.config
         limit = max(cfg.early_heading_p95_deg, cfg.max_heading_p95_deg)
@@ -137,26 +153,58 @@ class PartialCalibration:
             grow = res.heading_seen_deg / res.over_limit - 1.0
         elif res is not None and not res.over_limit and 0.0 < res.azimuth < cfg.partial_min_azimuth:
             grow = cfg.partial_min_azimuth / res.azimuth - 1.0  # turning adds azimuths about linearly in time
+            if not job.get("early"):  # (an early fit's quarter comes in seconds anyway)
+                self._watch_azimuths(res.calibration, job.get("series"))
         self._partial_growth = min(max(grow, self.PARTIAL_GROWTH), self.PARTIAL_GROWTH_MAX)
+
+    def _watch_azimuths(self, cal: Calibration | None, series: Array | None) -> None:
+        """After a fit refused on the azimuths turned through: watch the new series points' azimuths under
+        its calibration (``PARTIAL_GROWTH_MAX``)."""
+        self._az_watch = None
+        if cal is None or series is None or not len(series):
+            return
+        w, b = np.asarray(cal.matrix, dtype=np.float64), np.asarray(cal.offset, dtype=np.float64)
+        self._az_seen = set(azimuth_sectors(cal, series).tolist())
+        self._az_watch = (*w[0].tolist(), *w[1].tolist(), *b.tolist())
+
+    def _watch_point(self, x: float, y: float, z: float) -> None:
+        """One new series point under the azimuth watch: once the sectors seen reach ``partial_min_azimuth``,
+        the next partial fit is due at once."""
+        assert self._az_watch is not None
+        a, b, c, d, e, f, bx, by, bz = self._az_watch
+        dx, dy, dz = x - bx, y - by, z - bz
+        self._az_seen.add(azimuth_sector(a * dx + b * dy + c * dz, d * dx + e * dy + f * dz))
+        if len(self._az_seen) >= self.config.partial_min_azimuth * AZIMUTH_SECTORS:
+            self._az_watch = None
+            self._partial_growth = 0.0
 
     def _series_push(self, t: float, x: float, y: float, z: float) -> None:
         """One more sample: the series receives the mean of the samples of each ``partial_period_s``
-        (averaging, not picking every k-th, divides the white noise by sqrt(k))."""
+        (averaging, not picking every k-th, divides the white noise by sqrt(k)) and their spread, the mean
+        squared distance from that mean (the fit corrects the mean's shrinkage on a turn by it:
+        ``fitting_prior``, **Block means**). From raw sums: the spread of a turn (``1e-4`` of the squared
+        norm and more) is far above the ``1e-16`` of it that float64 loses."""
         acc = self._series_acc
         acc[0] += x
         acc[1] += y
         acc[2] += z
-        acc[3] += 1.0
+        acc[3] += x * x + y * y + z * z
+        acc[4] += 1.0
         if t - self._series_t < self.config.partial_period_s - 1e-6:  # 1 us: stamps through sec/nanosec
             return
         self._series_t = t
-        k = acc[3]
-        self._series.append((acc[0] / k, acc[1] / k, acc[2] / k))
-        self._series_acc = [0.0, 0.0, 0.0, 0.0]
+        k = acc[4]
+        px, py, pz = acc[0] / k, acc[1] / k, acc[2] / k
+        self._series.append((px, py, pz, max(acc[3] / k - px * px - py * py - pz * pz, 0.0)))
+        self._series_acc = [0.0, 0.0, 0.0, 0.0, 0.0]
         self._series_count += 1
+        if self._az_watch is not None:
+            self._watch_point(px, py, pz)
 
-    def _series_points(self) -> Array:
-        return np.array(self._series, dtype=np.float64).reshape(-1, 3)
+    def _series_points(self) -> tuple[Array, Array]:
+        """The series: block means (N, 3) and their spreads (N,)."""
+        arr = np.array(self._series, dtype=np.float64).reshape(-1, 4)
+        return arr[:, :3], arr[:, 3]
 
     def _partial_wanted(self) -> bool:
         """The full validator refused: is a partial fit worth a try now (module docstring)?"""
@@ -174,19 +222,22 @@ class PartialCalibration:
         self._series_at_attempt = self._series_count
         self._series_len_at_attempt = len(self._series)
         cur = self._partial if (self._cal is not None and not self._changed) else None
-        series = self._series_points()
+        series, spread = self._series_points()
         early = len(series) < self.config.min_points
         if early:  # the recent samples until the series is long enough, as block means of EARLY_POINTS at most
             recent = np.array(self._recent_v, dtype=np.float64).reshape(-1, 3)
             k = -(-len(recent) // self.EARLY_POINTS)
-            series = recent[len(recent) % k:].reshape(-1, k, 3).mean(axis=1) if k > 1 else recent
-        return {**job, "partial": True, "series": series, "prior": self._prior, "early": early,
+            blocks = recent[len(recent) % k:].reshape(-1, k, 3)
+            series = blocks.mean(axis=1)
+            spread = np.einsum("ijk,ijk->i", blocks - series[:, None], blocks - series[:, None]) / k
+        return {**job, "partial": True, "series": series, "spread": spread, "prior": self._prior, "early": early,
                 "sigma": self._early_sigma if early else self._partial_sigma,
                 "start": None if (early or self._changed) else self._partial_start,  # a sensor change: every start
                 "current_heading": None if cur is None else cur.heading_seen_deg}
 
     def _partial_compute(self, job: dict[str, Any]) -> tuple[Calibration | None, str]:
-        res = partial_fit(job["series"], job["prior"], job["config"], recent=job["recent"], current=job["current"],
+        res = partial_fit(job["series"], job["prior"], job["config"], spread=job["spread"], recent=job["recent"],
+                          current=job["current"],
                           stamp=job["t"], sensor=self.sensor, current_heading=job["current_heading"], sigma=job["sigma"],
                           max_iter=self.EARLY_MAX_ITER if job["early"] else job["config"].max_iter, start=job["start"],
                           sigma_tolerance=math.inf if job["early"] else SIGMA_REUSE_TOLERANCE)
