@@ -4,9 +4,10 @@ The value ``Calibration`` (h = W (v - b), Camps et al. 2009 Eq. 2, norm |h|) and
 (``calibration_file``, strict field readers in ``fields``); the fits of ``fitting``: ``sphere`` and
 ``lin_auto`` (Gietzelt et al. 2013, Eqs. 5-17, in ``fitting_linear``), ``lm`` (Camps et al. 2009,
 Eqs. 6-12), with ``fitting_core`` holding the shared Gauss-Newton pieces; the MAP fit with a prior
-that updates only what the data determine (``fitting_prior``, with the coloured-noise model of its time
-series in ``fitting_noise``) and the heading error predicted from a calibration's covariance
-(``heading``). Everything else builds on this package; it imports nothing of the rest.
+that updates only what the data determine (``fitting_prior``, its geometric residual in
+``fitting_geometric``, the coloured-noise model of its time series in ``fitting_noise``) and the heading
+error predicted from a calibration's covariance (``heading``). Everything else builds on this package;
+it imports nothing of the rest.
 """
 
 from __future__ import annotations

@@ -11,23 +11,16 @@ residual
 
     r_i(theta) = (|W d_i| - n) / |W u_i|,   d_i = v_i - b,  u_i = W d_i / |W d_i|,
 
-the norm residual of Camps et al. 2009 (Eqs. 2, 4-7) divided by its gradient in the raw reading, i.e.
-the first-order distance of ``v_i`` from the ellipsoid in raw units, with white noise of standard
-deviation ``sigma``, and a Gaussian prior ``theta ~ N(theta_0, P_0)``. The division matters on partial
-coverage: the plain norm residual can be made small by flattening the ellipsoid across the data (a
-cap or a ring of yaw-only data is fitted by a huge, flat ellipsoid far away whose gradient is small,
-so its norm residuals are far below the noise), while the geometric residual cannot.
+the norm residual of Camps et al. 2009 (Eqs. 2, 4-7) divided by its gradient in the raw reading
+(``fitting_geometric``: why, and its exact Jacobian), with white noise of standard deviation ``sigma``, and
+a Gaussian prior ``theta ~ N(theta_0, P_0)``.
 
 **Estimate.** The MAP estimate minimises
 
     S(theta) = sum_i r_i(theta)^2 / sigma^2 + (theta - theta_0)^T P_0^-1 (theta - theta_0),
 
 solved as the stacked least-squares problem ``[r / sigma; L^T (theta - theta_0)]`` (``L L^T = P_0^-1``)
-by Levenberg-Marquardt on the normal equations (``_lm``) with the *exact* Jacobian of ``r``: writing ``y = W d``, ``q = W y``,
-``r = (|y| - n) |y| / |q|`` and ``dr = alpha (y . dy) - beta (q . dq)`` with ``alpha = (2|y| - n) / (|y| |q|)``,
-``beta = r / |q|^2``. (Dropping the derivative of ``1 / |W u|`` is not harmless: LM then stops where
-``J^T r = 0`` for the wrong ``J``, an ``O(sigma^2)`` bias per point that does not average out; on a ring it
-moved the weakly determined terms by several sigmas, more the more points.) Starts (unless one is given,
+by Levenberg-Marquardt on the normal equations (``_lm``) with the exact Jacobian of ``r``. Starts (unless one is given,
 e.g. a stream's previous solution): the centres of a sphere of the prior's radius through the data (two on
 a ring, where the vertical centre is fixed by the norm only up to its sign), and the prior unless the data
 determine that centre (an LM run from a far prior offset then only crawls to the same optimum); the
@@ -38,7 +31,7 @@ form of the Gauss-Newton step).
 
 **Norm.** By default ``n`` is the prior's and held fixed. With ``norm_rel_std > 0`` it is a tenth parameter
 with the prior ``N(prior.norm, (norm_rel_std prior.norm)^2)``, estimated with the others
-(``dr / dn = -|y| / |q|``); the returned calibration has the estimated norm and the covariance of the nine
+; the returned calibration has the estimated norm and the covariance of the nine
 parameters marginal over it: the data reduce the norm's uncertainty where they determine it (a tumble,
 a steep band) and leave the prior's on a ring, where the vertical offset follows the norm.
 
@@ -63,13 +56,8 @@ by ``sqrt(k)`` and leaves the slow part, which this model then accounts for.
 ``scripts/study_ground_robot.py`` measures how well the result predicts the heading error on the
 independent generator.
 
-**Block means.** A stream's series holds the mean of each short block of samples. While the sensor
-turns, a block's samples lie on an arc and their mean inside the ellipsoid: exactly,
-``|W d_mean|^2 = n^2 - mean_i |W (d_i - d_mean)|^2`` when every ``|W d_i| = n``. Given each block's spread
-``s = mean_i |v_i - v_mean|^2`` (``spread``), a point is fitted to the norm ``sqrt(n^2 - k^2 s)`` (``k`` the
-prior's matrix scale: ``W`` is ``k I`` up to a few per cent, and the correction itself is small). Ignored,
-the shrinkage follows the turn and tilt rates: on the ground-robot generator at 20 deg tilt (blocks of
-0.2 s, spreads up to 3 uT rms) it put the heading error at 30 deg near 2 deg; corrected, 0.4 deg.
+**Block means.** A stream's series holds the mean of each short block of samples; with each block's
+spread (``spread``) a point is fitted to the norm its mean should have (``fitting_geometric``).
 
 **Prior.** The last accepted calibration with its covariance (inflated by ``inflate`` so the data can
 move it), or, with none, ``broad_prior``: zero offset and identity matrix scaled to the data's mean
@@ -98,6 +86,7 @@ from scipy.linalg.lapack import dposv
 from .calibration import Calibration, FitStats
 from .errors import ConvergenceError, DegenerateDataError, InputError, as_points
 from .fitting_core import mad_sigma, pack, parameter_names, resjac, unpack
+from .fitting_geometric import geometric, norm_spreads
 from .fitting_noise import Whitener, noise_model, whitener
 
 __all__ = ["BROAD_MATRIX_STD", "BROAD_OFFSET_STD", "UPDATED_VARIANCE_RATIO", "PriorFit", "broad_prior", "fit_with_prior",
@@ -116,7 +105,6 @@ _MIN_SIGMA_REL = 1e-6
 _LM_FTOL = 1e-9
 _LM_XTOL = 1e-10
 _LM_LAM_MAX = 1e12
-_OFF_J, _OFF_K = [0, 0, 1], [1, 2, 2]  # (x, y), (x, z), (y, z): the off-diagonal entries of W
 
 
 @dataclass(frozen=True)
@@ -230,7 +218,7 @@ def fit_with_prior(points: ArrayLike, prior: Calibration, *, sigma: float | None
         msg = f"sigma must be a positive finite number, got {sigma!r}"
         raise InputError(msg)
     n0 = float(prior.norm)
-    sp = _spread(spread, len(pts), prior, n0)
+    sp = norm_spreads(spread, len(pts), prior.matrix, n0)
     theta0, info0 = _prior_parts(prior, inflate)
     if norm_rel_std > 0:  # the norm joins the parameters: theta = (b, W entries, n)
         theta0 = np.r_[theta0, n0]
@@ -245,7 +233,7 @@ def fit_with_prior(points: ArrayLike, prior: Calibration, *, sigma: float | None
     else:
         starts = _starts(pts, theta0, prior.raw_radius)
     theta, s, iters = _best_solve(z, starts, theta0, info0, chol, n0, sigma, floor, max_iter, sp)
-    r, jt = _geometric(z, theta, n0, sp)
+    r, jt = geometric(z, theta, n0, sp)
     model = noise_model(r) if time_ordered else None
     if model is None:
         data_info = jt @ jt.T / (s * s)
@@ -257,7 +245,7 @@ def fit_with_prior(points: ArrayLike, prior: Calibration, *, sigma: float | None
             msg = "MAP fit found no finite solution"
             raise ConvergenceError(msg)
         iters += k
-        r, jt = _geometric(z, theta, n0, sp)
+        r, jt = geometric(z, theta, n0, sp)
         jw = white(jt)
         data_info = jw @ jw.T / (s_e * s_e)
     post = np.linalg.inv(data_info + info0)[:9, :9]
@@ -279,19 +267,6 @@ def fit_with_prior(points: ArrayLike, prior: Calibration, *, sigma: float | None
                     residual_sigma=s if sigma is None else max(mad_sigma(r), floor))
 
 
-def _spread(spread: ArrayLike | None, m: int, prior: Calibration, n0: float) -> Array | None:
-    """The block spreads in calibrated units squared (``k^2 spread``, ``k`` the prior's matrix scale), at most
-    three quarters of the squared norm (module docstring, **Block means**); None for single samples."""
-    if spread is None:
-        return None
-    sp = np.asarray(spread, dtype=np.float64).reshape(-1)
-    if sp.size != m or not np.all(np.isfinite(sp)) or np.any(sp < 0):
-        msg = f"spread must hold {m} finite non-negative numbers, one per point"
-        raise InputError(msg)
-    k = float(np.mean(np.abs(np.diag(np.asarray(prior.matrix, dtype=np.float64)))))
-    return np.minimum(k * k * sp, 0.75 * n0 * n0)
-
-
 def _best_solve(z: Array, starts: list[Array], theta0: Array, info0: Array, chol: Array, n0: float,
                 sigma: float | None, floor: float, max_iter: int, sp: Array | None) -> tuple[Array, float, int]:
     """The unweighted MAP solve from each start; the lowest posterior cost wins, every start judged at the
@@ -311,33 +286,6 @@ def _best_solve(z: Array, starts: list[Array], theta0: Array, info0: Array, chol
         raise ConvergenceError(msg)
     s_ref = min(sol[1] for sol in sols)
     return min(sols, key=lambda sol: _cost(z, sol[0], theta0, chol, n0, s_ref, sp))
-
-
-def _geometric(z: Array, theta: Array, n: float, sp: Array | None = None) -> tuple[Array, Array]:
-    """Geometric residuals (raw units) and their exact transposed Jacobian (P, N) (module docstring); a tenth
-    parameter is the norm (which then replaces ``n``); ``sp``: block spreads (``_spread``), each point's norm
-    then ``sqrt(n^2 - sp)``."""
-    b, mat = unpack(theta[:9], "sym")
-    n_given = float(theta[9]) if theta.size == 10 else n
-    n = n_given if sp is None else np.sqrt(np.maximum(n_given * n_given - sp, 0.25 * n_given * n_given))
-    d = z - b[:, None]
-    y = mat @ d  # W d
-    q = mat @ y  # W^2 d: |W u| = |q| / |y|
-    a = mat @ q
-    rho = np.sqrt(np.einsum("in,in->n", y, y))
-    qn = np.maximum(np.sqrt(np.einsum("in,in->n", q, q)), 1e-300)
-    r = (rho - n) * rho / qn
-    alpha = (2.0 * rho - n) / (np.maximum(rho, 1e-300) * qn)  # dr = alpha (y . dy) - beta (q . dq)
-    beta = r / (qn * qn)
-    jt = np.empty((theta.size, z.shape[1]))
-    jt[:3] = beta * (mat @ a) - alpha * q
-    jt[3:6] = alpha * y * d - beta * (q * y + a * d)
-    jk, kk = _OFF_J, _OFF_K
-    jt[6:9] = (alpha * (y[jk] * d[kk] + y[kk] * d[jk])
-               - beta * (q[jk] * y[kk] + q[kk] * y[jk] + a[jk] * d[kk] + a[kk] * d[jk]))
-    if theta.size == 10:
-        jt[9] = -rho / qn if sp is None else -(rho / qn) * (n_given / n)
-    return r, jt
 
 
 def _starts(pts: Array, theta0: Array, radius: float) -> list[Array]:
@@ -380,7 +328,7 @@ def _solve(z: Array, start: Array, theta0: Array, info0: Array, n: float, sigma:
     s = sigma
     for _ in range(1 if sigma is not None else 3):
         if sigma is None:
-            s = max(mad_sigma(_geometric(z, theta, n, sp)[0]), floor)
+            s = max(mad_sigma(geometric(z, theta, n, sp)[0]), floor)
         assert s is not None
         theta, k = _lm(z, theta, theta0, info0, n, s, max_iter, sp)
         iters += k
@@ -441,14 +389,14 @@ def _lm(z: Array, theta: Array, theta0: Array, info0: Array, n: float, s: float,
 
 
 def _residuals(z: Array, theta: Array, n: float, sp: Array | None, white: Whitener | None) -> tuple[Array, Array]:
-    """``_geometric``, through the whitening filter when one is given."""
-    r, jt = _geometric(z, theta, n, sp)
+    """``fitting_geometric.geometric``, through the whitening filter when one is given."""
+    r, jt = geometric(z, theta, n, sp)
     return (r, jt) if white is None else (white(r), white(jt))
 
 
 def _cost(z: Array, theta: Array, theta0: Array, chol: Array, n: float, s: float, sp: Array | None = None) -> float:
     """The posterior cost ``S(theta)`` at noise ``s``."""
-    r = _geometric(z, theta, n, sp)[0] / s
+    r = geometric(z, theta, n, sp)[0] / s
     dp = chol @ (theta - theta0)
     return float(r @ r + dp @ dp)
 
@@ -468,7 +416,7 @@ def posterior_at(points: ArrayLike, cal: Calibration, prior: Calibration, *, sig
         raise DegenerateDataError(msg)
     _, info0 = _prior_parts(prior, 1.0)
     theta = pack(np.asarray(cal.offset, dtype=np.float64), np.asarray(cal.matrix, dtype=np.float64), "sym")
-    r, jt = _geometric(np.ascontiguousarray(pts.T), theta, float(cal.norm))
+    r, jt = geometric(np.ascontiguousarray(pts.T), theta, float(cal.norm))
     s = sigma if sigma is not None else max(mad_sigma(r), _MIN_SIGMA_REL * prior.raw_radius)
     post = np.linalg.inv(jt @ jt.T / (s * s) + info0)
     return cal.replace(covariance=0.5 * (post + post.T), parameter_names=NAMES)

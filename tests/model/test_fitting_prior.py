@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from ros_margcal import Calibration, fit
+from ros_margcal.model import fitting_geometric as fg
 from ros_margcal.model import fitting_prior as fp
 from ros_margcal.model.errors import InputError
 from ros_margcal.model.fitting_core import pack
@@ -176,8 +177,8 @@ def test_the_spread_identity_is_exact_on_noise_free_arcs() -> None:
     theta = pack(b, w, "sym")
     z = np.ascontiguousarray(pts.T)
     prior = broad_prior(pts, n)
-    plain = fp._geometric(z, theta, n)[0]
-    fixed = fp._geometric(z, theta, n, fp._spread(spread, len(pts), prior, n))[0]
+    plain = fg.geometric(z, theta, n)[0]
+    fixed = fg.geometric(z, theta, n, fg.norm_spreads(spread, len(pts), prior.matrix, n))[0]
     assert np.abs(plain).max() > 0.003 * n
     assert np.abs(fixed).max() < 0.1 * np.abs(plain).max()
     for bad in (spread[:-1], -spread, np.r_[spread[:-1], np.nan]):
@@ -210,12 +211,12 @@ def test_the_geometric_jacobian_is_exact() -> None:
     z = 50.0 * rng.normal(size=(3, 30)) + 3.0
     theta = np.r_[10.0 * rng.normal(size=3), 1.1, 0.9, 1.05, 0.05, -0.03, 0.02, 47.0]
     for p, sp in ((9, None), (10, None), (9, 4.0 * rng.random(30)), (10, 4.0 * rng.random(30))):
-        _, jt = fp._geometric(z, theta[:p], 48.0, sp)
+        _, jt = fg.geometric(z, theta[:p], 48.0, sp)
         num = np.empty_like(jt)
         for k in range(p):
             e = np.zeros(p)
             e[k] = 1e-6 * max(1.0, abs(theta[k]))
-            num[k] = (fp._geometric(z, theta[:p] + e, 48.0, sp)[0] - fp._geometric(z, theta[:p] - e, 48.0, sp)[0]) / (2 * e[k])
+            num[k] = (fg.geometric(z, theta[:p] + e, 48.0, sp)[0] - fg.geometric(z, theta[:p] - e, 48.0, sp)[0]) / (2 * e[k])
         assert np.abs(num - jt).max() < 1e-7 * np.abs(jt).max()
 
 

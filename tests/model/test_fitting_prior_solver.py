@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
+import ros_margcal.model.fitting_geometric as fg
 import ros_margcal.model.fitting_prior as fp
 from ros_margcal.model.errors import DegenerateDataError
 from ros_margcal.model.fitting_core import pack
@@ -67,10 +68,10 @@ def test_the_normal_equation_lm_reaches_minpacks_minimum(independent: ModuleType
     ours, _ = fp._lm(z, theta0.copy(), theta0, info0, 48e-6, s, 500)
 
     def fun(th: np.ndarray) -> np.ndarray:
-        return np.r_[fp._geometric(z, th, 48e-6)[0] / s, chol @ (th - theta0)]
+        return np.r_[fg.geometric(z, th, 48e-6)[0] / s, chol @ (th - theta0)]
 
     def jac(th: np.ndarray) -> np.ndarray:
-        return np.vstack([fp._geometric(z, th, 48e-6)[1].T / s, chol])
+        return np.vstack([fg.geometric(z, th, 48e-6)[1].T / s, chol])
 
     ref = least_squares(fun, theta0.copy(), jac=jac, method="lm", xtol=1e-12, ftol=1e-12, max_nfev=2000).x
     c_ours, c_ref = fp._cost(z, ours, theta0, chol, 48e-6, s), fp._cost(z, ref, theta0, chol, 48e-6, s)
