@@ -4,7 +4,7 @@
 estimate and the decision live in ``observable`` (see its docstring). Here:
 
 - the decimated time series of the samples that reach the buffer stage (the accelerometer's: the
-  gate's still means): the mean of each ``partial_period_s``, the last ``partial_samples`` of them,
+  gate's still means): the mean of each ``partial_period_s`` and its spread, the last ``partial_samples`` of them,
   fed from the sample path;
 - the prior: the last *full* calibration accepted or loaded (with a covariance over the symmetric
   parameters; a full fit gets one from ``observable.heading_figures``), else the broad prior;
@@ -182,8 +182,8 @@ class PartialCalibration:
         """One more sample: the series receives the mean of the samples of each ``partial_period_s``
         (averaging, not picking every k-th, divides the white noise by sqrt(k)) and their spread, the mean
         squared distance from that mean (the fit corrects the mean's shrinkage on a turn by it:
-        ``fitting_prior``, **Block means**). From raw sums: the spread of a turn (``1e-4`` of the squared
-        norm and more) is far above the ``1e-16`` of it that float64 loses."""
+        ``model.fitting_geometric``). From raw sums: even a still sensor's spread, its white noise (about
+        ``1e-5`` of the squared norm), is far above the ``1e-16`` of it that float64 loses."""
         acc = self._series_acc
         acc[0] += x
         acc[1] += y
