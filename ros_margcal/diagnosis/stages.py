@@ -54,13 +54,13 @@ from scipy.linalg import solve_triangular
 from scipy.special import sph_harm_y
 
 from ..model.calibration import Calibration
-from ..model.errors import MargCalError
+from ..model.errors import ConvergenceError, MargCalError
 from ..model.fitting import fit
 from .downstream import N_SET, validator_errors
 
 __all__ = [
-    "STAGES", "STAGE_FLOORS", "StageFeatures", "rest_noise", "sh_basis", "sh_power", "stage_features",
-    "stage_floor", "stage_gaps"
+    "STAGES", "STAGE_FLOORS", "StageFeatures", "checked_sym", "closed_form_sym", "lm_diag", "rest_noise", "sh_basis", "sh_power",
+    "stage_features", "stage_floor", "stage_gaps", "sym_fit"
 ]
 
 log = logging.getLogger(__name__)
@@ -90,6 +90,8 @@ _K_TIME = 5
 _N_STEPS = 81
 _TINY = 1e-12
 _MAX_ITER = 400  # LM iterations: strong effects make the ellipsoid fit converge slowly
+_LM_WORSE = 1.1
+"""An ``lm`` fit whose residual RMS exceeds the closed form's by this factor is off the least-squares optimum."""
 
 
 def stage_floor(name: str, shape: tuple[int, ...]) -> Array:
@@ -319,10 +321,7 @@ def stage_features(
         DegenerateDataError, ConvergenceError: the subsample cannot be fitted (e.g. a static recording).
     """
     pts = raw[sub]
-    if closed_form:
-        cal = fit(pts, model="diag", method="lin_auto", norm=norm)
-    else:
-        cal = fit(pts, model="diag", method="lm", norm=norm, max_iter=_MAX_ITER)
+    cal = fit(pts, model="diag", method="lin_auto", norm=norm) if closed_form else lm_diag(pts, norm)
     r_raw = cal.raw_radius
     h = cal.apply(pts)
     lengths = np.linalg.norm(h, axis=1)
@@ -331,7 +330,7 @@ def stage_features(
     noise_rel = rest_noise(raw) / r_raw
     values: dict[str, Array] = {"rest_noise": np.array([_log10(noise_rel)])}
     values.update(_readout_features(raw))
-    sym = _sym_fit(pts, norm, closed_form)
+    sym = sym_fit(pts, norm, closed_form)
     sym_rms = float(sym.stats.rms_relative) if sym is not None and sym.stats is not None else float("nan")
     values["residual_size"] = np.array([_log10(float(np.sqrt(np.mean(r**2)))), _log10(sym_rms)])
     basis = sh_basis(dirs)
@@ -341,7 +340,7 @@ def stage_features(
     if "residual_time" not in skip:
         values["residual_time"] = _time_features(r, basis, t[sub], tsub, basis @ coef)
     values["residual_tails"] = _tail_features(r - basis @ coef)
-    if validator is not None and sym is not None:
+    if validator is not None and sym is not None and not closed_form:  # its calibration set would not converge either
         pick = np.linspace(0, len(sub) - 1, min(N_SET, len(sub))).astype(np.intp)
         try:
             pred, meas = validator_errors(pts[pick], sym, validator)
@@ -353,13 +352,66 @@ def stage_features(
     return StageFeatures(values=values, residual=r, dirs=dirs, t=t[sub], rest_noise=noise_rel)
 
 
-def _sym_fit(pts: Array, norm: float | None, closed_form: bool = False) -> Calibration | None:
+def _rms(cal: Calibration, pts: Array) -> float:
+    """RMS of the relative norm residual of ``cal`` on ``pts``."""
+    return float(np.sqrt(np.mean((np.linalg.norm(cal.apply(pts), axis=1) / cal.norm - 1.0) ** 2)))
+
+
+def lm_diag(pts: Array, norm: float | None, *, sensor: str = "", max_iter: int = _MAX_ITER) -> Calibration:
+    """The ``diag`` fit by ``lm``, refused when its residual exceeds the closed form's by ``_LM_WORSE``.
+
+    On part of the sphere (a ±20° band of tilts) the problem is ill-conditioned: ``lm`` crawls towards a
+    degenerate ellipsoid and its second-order bias correction, solved with a near-singular Gram matrix,
+    lands far off the least-squares optimum (residual 3x the noise). Features of such a fit measure the
+    fit, not the sensor, so the caller measures recording and twins with the closed form instead.
+
+    Raises:
+        ConvergenceError: ``lm`` does not converge or ends worse than ``lin_auto``.
+    """
+    cal = fit(pts, model="diag", method="lm", norm=norm, sensor=sensor, max_iter=max_iter)
     try:
-        if closed_form:  # lm would run to its iteration limit on the data that needed the closed form
-            return fit(pts, model="sym", method="lin_auto", norm=norm)
-        return fit(pts, model="sym", method="lm", norm=norm, max_iter=_MAX_ITER)
+        closed = fit(pts, model="diag", method="lin_auto", norm=norm, sensor=sensor)
+    except MargCalError:
+        return cal
+    if _rms(cal, pts) > _LM_WORSE * _rms(closed, pts):
+        msg = (f"lm's diag fit leaves a residual {_rms(cal, pts) / _rms(closed, pts):.2g} times the closed form's "
+               "(directions on part of the sphere make the fit ill-conditioned)")
+        raise ConvergenceError(msg)
+    return cal
+
+
+def closed_form_sym(pts: Array, norm: float | None) -> Calibration:
+    """The ``sym`` fit without ``lm``: the algebraic ellipsoid fit (``lin_auto`` fits no cross terms).
+
+    Raises:
+        DegenerateDataError: the points do not determine an ellipsoid.
+    """
+    return fit(pts, model="sym", method="algebraic", norm=norm)
+
+
+def sym_fit(pts: Array, norm: float | None, closed_form: bool = False) -> Calibration | None:
+    """The best (``sym``) fit: ``lm`` (``checked_sym``), or the algebraic fit when ``lm`` fails or with
+    ``closed_form`` (``lm`` would run to its iteration limit on the data that needed the closed form);
+    None when neither fits."""
+    if not closed_form:
+        try:
+            return checked_sym(fit(pts, model="sym", method="lm", norm=norm, max_iter=_MAX_ITER), pts, norm)
+        except MargCalError:
+            pass
+    try:
+        return closed_form_sym(pts, norm)
     except MargCalError:
         return None
+
+
+def checked_sym(cal: Calibration, pts: Array, norm: float | None) -> Calibration:
+    """``lm``'s ``sym`` fit ``cal``, or the algebraic fit when ``cal`` ends worse than it by ``_LM_WORSE``
+    (the ill-conditioned fit on part of the sphere, see ``lm_diag``)."""
+    try:
+        alg = closed_form_sym(pts, norm)
+    except MargCalError:
+        return cal
+    return alg if _rms(cal, pts) > _LM_WORSE * _rms(alg, pts) else cal
 
 
 def stage_gaps(

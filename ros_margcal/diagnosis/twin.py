@@ -37,7 +37,7 @@ from ..sim.effects import check_effects, sensor_model
 from ..sim.simulation import simulate
 from .baseline_noise import ar1_noise, estimate_slow_noise, shaped_truth
 from .changes import OffsetChange
-from .stages import StageFeatures, rest_noise, stage_features
+from .stages import StageFeatures, checked_sym, lm_diag, rest_noise, stage_features
 from .twin_fits import (
     CHANGE_EVIDENCE,
     MAX_ITER,
@@ -283,9 +283,9 @@ def build_twin(
     closed_form = False
     searched = False  # whether the offset change has been searched (it is searched once)
     try:
-        truth = fit(pts[sub], model="diag", method="lm", norm=norm, sensor=sensor, max_iter=MAX_ITER)
+        truth = lm_diag(pts[sub], norm, sensor=sensor, max_iter=MAX_ITER)
         try:
-            best = fit(pts[sub], model="sym", method="lm", norm=norm, max_iter=MAX_ITER)
+            best = checked_sym(fit(pts[sub], model="sym", method="lm", norm=norm, max_iter=MAX_ITER), pts[sub], norm)
         except MargCalError as exc_sym:
             change, searched = _located_change(times, pts, sub, norm, sensor), True
             if change is not None:
@@ -361,8 +361,8 @@ def build_twin(
             truth = shaped_truth(truth, shape, shape_tolerance, cross_only=True)
         except MargCalError as exc_shape:
             log.info("no cross terms for the twin's shape: %s", exc_shape)
-    elif change is None:
-        truth = shaped_truth(truth, best, shape_tolerance)
+    elif change is None:  # a closed-form best (the algebraic fit on part of the sphere): its cross terms only
+        truth = shaped_truth(truth, best, shape_tolerance, cross_only=closed_form)
     slow = (0.0, 1.0)
     if rest_noise_raw is None and "rest_noise" not in skipped and best.stats is not None:
         # a rest noise the caller measured (a static recording) is the sensor's whole noise model

@@ -22,7 +22,7 @@ from ..model.errors import DegenerateDataError, MargCalError
 from ..model.fitting import fit
 from ..sim.simulation import simulate
 from .changes import OffsetChange, locate_offset_change, moving_mask
-from .stages import rest_noise
+from .stages import checked_sym, closed_form_sym, lm_diag, rest_noise
 
 __all__ = ["CHANGE_EVIDENCE", "MAX_ITER", "MIN_SAMPLES", "SMOOTH_WINDOW", "smooth_directions"]
 
@@ -81,13 +81,13 @@ def _side_fit(
     a magnet attached and removed again makes two changes), else the closed-form ``lin_auto`` fits
     (a side that covers only part of the sphere)."""
     try:
-        diag = fit(pts[idx], model="diag", method="lm", norm=norm, sensor=sensor, max_iter=MAX_ITER)
+        diag = lm_diag(pts[idx], norm, sensor=sensor, max_iter=MAX_ITER)
     except MargCalError:
         inner = locate_offset_change(times[idx], pts[idx]) if depth > 0 else None
         if inner is None:
             diag = fit(pts[idx], model="diag", method="lin_auto", norm=norm, sensor=sensor)
             try:
-                return fit(pts[idx], model="sym", method="lin_auto", norm=norm), diag
+                return closed_form_sym(pts[idx], norm), diag
             except MargCalError:
                 return diag, diag
         ti = times[idx]
@@ -95,7 +95,7 @@ def _side_fit(
         parts = [idx[ti < inner.t - _GUARD * span], idx[ti > inner.t + _GUARD * span]]
         return _side_fit(times, pts, max(parts, key=len), norm, sensor, depth - 1)
     try:
-        sym = fit(pts[idx], model="sym", method="lm", norm=norm, max_iter=MAX_ITER)
+        sym = checked_sym(fit(pts[idx], model="sym", method="lm", norm=norm, max_iter=MAX_ITER), pts[idx], norm)
     except MargCalError:
         sym = diag
     return sym, diag
@@ -150,7 +150,7 @@ def _closed_form_fits(
                "turns the sensor through many directions (a static recording only gives rest noise and quantisation)")
         raise DegenerateDataError(msg) from exc2
     try:
-        best = fit(pts[sub], model="sym", method="lin_auto", norm=norm)
+        best = closed_form_sym(pts[sub], norm)
     except MargCalError:
         best = truth
     log.info("lm does not converge (%s) and no offset change explains it: closed-form fits", exc)
