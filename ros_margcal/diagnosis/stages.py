@@ -168,15 +168,24 @@ def sh_basis(dirs: Array, l_max: int = _L_MAX) -> Array:
 
 
 def sh_power(residual: Array, basis: Array, l_max: int = _L_MAX) -> tuple[Array, Array]:
-    """Least-squares harmonic coefficients of ``residual`` and the RMS amplitude per degree ``l``.
+    """Least-squares harmonic coefficients of ``residual`` and its RMS amplitude per degree ``l`` on the samples.
+
+    The amplitude of degree ``l`` is the RMS over the samples of what the degrees up to ``l`` explain beyond
+    those up to ``l - 1`` (nested least squares). On directions that cover the sphere it is the RMS over
+    the sphere of the degree-l part, ``sqrt(sum_m c_lm^2 / 4 pi)``; on part of it (a band of tilts) the
+    harmonics are far from orthogonal and the coefficients, extrapolated to directions never seen, blow
+    up by orders of magnitude, while what each degree adds on the samples stays what the data show.
 
     Returns:
-        (coefficients ((l_max+1)^2,), amplitude (l_max+1,)) where amplitude[l] is the RMS over the
-        sphere of the degree-l part, ``sqrt(sum_m c_lm^2 / 4 pi)``.
+        (coefficients ((l_max+1)^2,), amplitude (l_max+1,)).
     """
     coef = _lstsq(basis, residual)
-    amp = np.array([math.sqrt(float(np.sum(coef[ell * ell:(ell + 1) ** 2] ** 2)) / (4 * math.pi))
-                    for ell in range(l_max + 1)])
+    prev = np.zeros_like(residual)
+    amp = np.zeros(l_max + 1)
+    for ell in range(l_max + 1):
+        cur = basis @ coef if ell == l_max else _explained(residual, basis[:, :(ell + 1) ** 2])
+        amp[ell] = math.sqrt(float(np.mean((cur - prev) ** 2)))
+        prev = cur
     return coef, amp
 
 
