@@ -248,7 +248,12 @@ def diagnose(
     gap_before = overall_gap(before)
     observable, hidden = applicable_effects(sensor)
     has_temp = twin.temp is not None and bool(np.ptp(twin.temp) > 0)
-    fits = rank_effects(twin, base, observable, seeds=seeds, progress=progress, refine_seeds=base.seeds, quick=quick)
+    # every seed of the spread re-ranks the leading effects, but not on a closed-form twin (part of the sphere,
+    # clipping): there an effect's draws (its direction against the directions seen) set its features more than
+    # its size, the mean over more draws moves away from the one draw the recording holds, and the search,
+    # which fitted the size on its seeds, decides (its sym feature was NaN there, which skipped this before)
+    refine = () if twin.closed_form else base.seeds
+    fits = rank_effects(twin, base, observable, seeds=seeds, progress=progress, refine_seeds=refine, quick=quick)
     if twin.change is not None:
         fits = _prefer_located_jump(fits)
     group_of = {e.name: effective_group(e, has_temp) for e in observable}

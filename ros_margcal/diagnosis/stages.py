@@ -53,14 +53,14 @@ from numpy.typing import NDArray
 from scipy.linalg import solve_triangular
 from scipy.special import sph_harm_y
 
-from ..model.calibration import Calibration
-from ..model.errors import ConvergenceError, MargCalError
+from ..model.errors import MargCalError
 from ..model.fitting import fit
 from .downstream import N_SET, validator_errors
+from .fit_checks import lm_diag, sym_fit
 
 __all__ = [
-    "STAGES", "STAGE_FLOORS", "StageFeatures", "checked_sym", "closed_form_sym", "lm_diag", "rest_noise", "sh_basis", "sh_power",
-    "stage_features", "stage_floor", "stage_gaps", "sym_fit"
+    "STAGES", "STAGE_FLOORS", "StageFeatures", "rest_noise", "sh_basis", "sh_power", "stage_features",
+    "stage_floor", "stage_gaps"
 ]
 
 log = logging.getLogger(__name__)
@@ -90,8 +90,6 @@ _K_TIME = 5
 _N_STEPS = 81
 _TINY = 1e-12
 _MAX_ITER = 400  # LM iterations: strong effects make the ellipsoid fit converge slowly
-_LM_WORSE = 1.1
-"""An ``lm`` fit whose residual RMS exceeds the closed form's by this factor is off the least-squares optimum."""
 
 
 def stage_floor(name: str, shape: tuple[int, ...]) -> Array:
@@ -359,68 +357,6 @@ def stage_features(
     for name in skip:
         values.pop(name, None)
     return StageFeatures(values=values, residual=r, dirs=dirs, t=t[sub], rest_noise=noise_rel)
-
-
-def _rms(cal: Calibration, pts: Array) -> float:
-    """RMS of the relative norm residual of ``cal`` on ``pts``."""
-    return float(np.sqrt(np.mean((np.linalg.norm(cal.apply(pts), axis=1) / cal.norm - 1.0) ** 2)))
-
-
-def lm_diag(pts: Array, norm: float | None, *, sensor: str = "", max_iter: int = _MAX_ITER) -> Calibration:
-    """The ``diag`` fit by ``lm``, refused when its residual exceeds the closed form's by ``_LM_WORSE``.
-
-    On part of the sphere (a ±20° band of tilts) the problem is ill-conditioned: ``lm`` crawls towards a
-    degenerate ellipsoid and its second-order bias correction, solved with a near-singular Gram matrix,
-    lands far off the least-squares optimum (residual 3x the noise). Features of such a fit measure the
-    fit, not the sensor, so the caller measures recording and twins with the closed form instead.
-
-    Raises:
-        ConvergenceError: ``lm`` does not converge or ends worse than ``lin_auto``.
-    """
-    cal = fit(pts, model="diag", method="lm", norm=norm, sensor=sensor, max_iter=max_iter)
-    try:
-        closed = fit(pts, model="diag", method="lin_auto", norm=norm, sensor=sensor)
-    except MargCalError:
-        return cal
-    if _rms(cal, pts) > _LM_WORSE * _rms(closed, pts):
-        msg = (f"lm's diag fit leaves a residual {_rms(cal, pts) / _rms(closed, pts):.2g} times the closed form's "
-               "(directions on part of the sphere make the fit ill-conditioned)")
-        raise ConvergenceError(msg)
-    return cal
-
-
-def closed_form_sym(pts: Array, norm: float | None) -> Calibration:
-    """The ``sym`` fit without ``lm``: the algebraic ellipsoid fit (``lin_auto`` fits no cross terms).
-
-    Raises:
-        DegenerateDataError: the points do not determine an ellipsoid.
-    """
-    return fit(pts, model="sym", method="algebraic", norm=norm)
-
-
-def sym_fit(pts: Array, norm: float | None, closed_form: bool = False) -> Calibration | None:
-    """The best (``sym``) fit: ``lm`` (``checked_sym``), or the algebraic fit when ``lm`` fails or with
-    ``closed_form`` (``lm`` would run to its iteration limit on the data that needed the closed form);
-    None when neither fits."""
-    if not closed_form:
-        try:
-            return checked_sym(fit(pts, model="sym", method="lm", norm=norm, max_iter=_MAX_ITER), pts, norm)
-        except MargCalError:
-            pass
-    try:
-        return closed_form_sym(pts, norm)
-    except MargCalError:
-        return None
-
-
-def checked_sym(cal: Calibration, pts: Array, norm: float | None) -> Calibration:
-    """``lm``'s ``sym`` fit ``cal``, or the algebraic fit when ``cal`` ends worse than it by ``_LM_WORSE``
-    (the ill-conditioned fit on part of the sphere, see ``lm_diag``)."""
-    try:
-        alg = closed_form_sym(pts, norm)
-    except MargCalError:
-        return cal
-    return alg if _rms(cal, pts) > _LM_WORSE * _rms(alg, pts) else cal
 
 
 def stage_gaps(

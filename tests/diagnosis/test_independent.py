@@ -14,8 +14,9 @@ import pytest
 
 from ros_margcal.diagnosis import diagnose, locate_offset_change, stage_gaps
 from ros_margcal.diagnosis.baseline_noise import ar1_noise, estimate_slow_noise, shaped_truth
+from ros_margcal.diagnosis.fit_checks import lm_diag, sym_fit
 from ros_margcal.diagnosis.ranking import PLAIN_GROUPS, EffectFit, gap_with, separate_close_calls
-from ros_margcal.diagnosis.stages import StageFeatures, lm_diag, sym_fit
+from ros_margcal.diagnosis.stages import StageFeatures
 from ros_margcal.diagnosis.twin import build_twin, subsample
 from ros_margcal.model.calibration import Calibration
 from ros_margcal.model.errors import ConvergenceError
@@ -221,3 +222,4 @@ def test_band_recording_gives_finite_gaps_on_the_effects_own_spread(independent:
     base.sd["residual_size"] = np.full_like(base.sd["residual_size"], np.nan)
     gap_nan, _ = gap_with(twin, base, "soft_iron", 0.05, base.seeds, own_spread=True)
     assert math.isfinite(gap_nan)
+
