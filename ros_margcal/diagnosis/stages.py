@@ -59,7 +59,7 @@ from .downstream import N_SET, validator_errors
 from .fit_checks import lm_diag, sym_fit
 
 __all__ = [
-    "STAGES", "STAGE_FLOORS", "StageFeatures", "rest_noise", "sh_basis", "sh_power", "stage_features",
+    "STAGES", "STAGE_FLOORS", "StageFeatures", "clipped_shares", "rest_noise", "sh_basis", "sh_power", "stage_features",
     "stage_floor", "stage_gaps"
 ]
 
@@ -135,17 +135,21 @@ def rest_noise(raw: Array) -> float:
 
 def _readout_features(raw: Array) -> dict[str, Array]:
     n = raw.shape[0]
-    uniq, rep, clip = [], [], []
+    uniq, rep = [], []
     same = np.diff(raw, axis=0) == 0
     for a in range(3):
         col = raw[:, a]
         uniq.append(np.unique(col).size / n)
         rep.append(float(same[:, a].mean()))
-        clip.append(float(np.mean((col == col.max()) | (col == col.min()))))
     return {
         "quantisation": np.array([_log10(float(np.mean(uniq))), float(np.mean(rep)), float(same.all(axis=1).mean())]),
-        "clipping": np.array([float(np.mean(clip))]),
+        "clipping": np.array([float(np.mean(clipped_shares(raw)))]),
     }
+
+
+def clipped_shares(raw: Array) -> Array:
+    """Per axis, the share of samples sitting exactly at the axis' largest or smallest reading (clipping)."""
+    return np.array([float(np.mean((col == col.max()) | (col == col.min()))) for col in raw.T])
 
 
 def sh_basis(dirs: Array, l_max: int = _L_MAX) -> Array:

@@ -223,3 +223,17 @@ def test_band_recording_gives_finite_gaps_on_the_effects_own_spread(independent:
     gap_nan, _ = gap_with(twin, base, "soft_iron", 0.05, base.seeds, own_spread=True)
     assert math.isfinite(gap_nan)
 
+
+def test_axis_clipped_throughout_is_saturation_without_a_twin(independent: ModuleType) -> None:
+    """On a band of tilts a clip level of 0.72 field radii holds one axis at its limit throughout: the points
+    are coplanar and no twin can be fitted (this was ``unexplained`` in no time); the read-out alone shows
+    the clipping, so the verdict is saturation with the reason. An unclipped recording too short for a twin
+    stays ``unexplained``."""
+    rec, norm = _recording(independent, "saturation", motion="band", duration=60.0, magnitude=0.72)
+    d = diagnose(rec, sensor="mag", norm=norm, quick=True)
+    assert d.twin is None  # no twin: the read-out verdict
+    assert d.cause == "saturation"
+    assert "clipping" in d.reason and "no twin can be fitted" in d.reason
+    assert json.dumps(d.to_dict(), default=float)
+    short, _ = _recording(independent, "none", duration=0.6)
+    assert diagnose(short, sensor="mag", norm=norm, quick=True).cause == "unexplained"
