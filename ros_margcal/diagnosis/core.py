@@ -41,8 +41,9 @@ from ..model.errors import ConfigError, InputError
 from ..sim.simulation import EFFECTS
 from .downstream import N_SET, compare_validators
 from .ranking import EffectFit, applicable_effects, effective_group, equivalent_groups, gap_with, overall_gap, rank_effects
-from .stages import stage_gaps
+from .stages import clipped_shares, stage_gaps
 from .twin import DEFAULT_N_FIT, FIT_ERRORS, Baseline, Twin, build_twin, mean_features
+from .twin_fits import MIN_SAMPLES
 
 __all__ = ["NONE_GAP", "Diagnosis", "diagnose", "diagnose_holdout", "validator_downstream"]
 
@@ -61,6 +62,8 @@ MARGINAL_SIZE = 0.4
 """A marginal gap (< 2 NONE_GAP) that only an effect below this share of its typical (default) magnitude
 closes counts as the baseline's spread (``none``): a twin's noise model (its slow noise above all) is
 itself uncertain by that much."""
+CLIPPED_SHARE = 0.2
+"""Share of samples at an axis' extreme reading that is clipping beyond doubt (``_no_twin``)."""
 QUICK_N_FIT = 2000
 """Fitting samples of a ``quick`` diagnosis."""
 
@@ -97,7 +100,8 @@ class Diagnosis:
     skipped: dict[str, str] = field(default_factory=dict)
     offset_change: dict[str, float] = field(default_factory=dict)
     reason: str = ""
-    """Why the cause is ``unexplained`` without a ranking (the twin could not be built), else empty."""
+    """Why there is no ranking (the twin could not be built: ``unexplained``, or ``saturation`` read off the
+    samples), else empty."""
 
     @property
     def best(self) -> EffectFit | None:
@@ -242,13 +246,18 @@ def diagnose(
         raise
     except FIT_ERRORS as exc:  # a recording that makes no usable twin still gets a verdict, with the reason
         log.info("no twin: %s", exc)
-        return _no_twin(sensor, len(t), str(exc), time.monotonic() - t0)
+        return _no_twin(sensor, len(t), str(exc), time.monotonic() - t0, raw)
     seeds = base.seeds[:n_seeds]
     before = stage_gaps(twin.features_rec.values, base.mean, base.sd)  # against every seed of the spread
     gap_before = overall_gap(before)
     observable, hidden = applicable_effects(sensor)
     has_temp = twin.temp is not None and bool(np.ptp(twin.temp) > 0)
-    fits = rank_effects(twin, base, observable, seeds=seeds, progress=progress, refine_seeds=base.seeds, quick=quick)
+    # every seed of the spread re-ranks the leading effects, but not on a closed-form twin (part of the sphere,
+    # clipping): there an effect's draws (its direction against the directions seen) set its features more than
+    # its size, the mean over more draws moves away from the one draw the recording holds, and the search,
+    # which fitted the size on its seeds, decides (its sym feature was NaN there, which skipped this before)
+    refine = () if twin.closed_form else base.seeds
+    fits = rank_effects(twin, base, observable, seeds=seeds, progress=progress, refine_seeds=refine, quick=quick)
     if twin.change is not None:
         fits = _prefer_located_jump(fits)
     group_of = {e.name: effective_group(e, has_temp) for e in observable}
@@ -281,11 +290,25 @@ def diagnose(
     )
 
 
-def _no_twin(sensor: str, n: int, reason: str, seconds: float) -> Diagnosis:
-    """The verdict on a recording whose twin cannot be built: ``unexplained``, with the reason."""
+def _no_twin(sensor: str, n: int, reason: str, seconds: float, raw: Array | None = None) -> Diagnosis:
+    """The verdict on a recording whose twin cannot be built: ``unexplained``, with the reason.
+
+    One exception, read off the samples without a twin: an axis that sits at its extreme reading for at
+    least ``CLIPPED_SHARE`` of ``MIN_SAMPLES`` or more samples is clipped (an unclipped reading repeats its
+    extreme value about once), and a clipped axis is the likely reason no fit exists (on a band of tilts an
+    axis clipped throughout leaves coplanar points): the cause is ``saturation``, and the reason says it
+    rests on the read-out alone.
+    """
     observable, hidden = applicable_effects(sensor)
-    return Diagnosis(where="", cause="unexplained", cause_effects=[], shrink=0.0, gap_before=math.nan,
-                     gap_after=math.nan, stages_before={}, stages_after={}, effects=[],
+    cause, members = "unexplained", []
+    shares = clipped_shares(raw) if raw is not None and len(raw) >= MIN_SAMPLES else np.zeros(0)
+    if shares.size and float(shares.max()) >= CLIPPED_SHARE and "saturation" in {e.name for e in observable}:
+        axis = int(np.argmax(shares))
+        cause, members = "saturation", ["saturation"]
+        reason = (f"axis {'xyz'[axis]} sits at its extreme reading in {100 * shares[axis]:.0f} % of the samples "
+                  f"(clipping), and no twin can be fitted ({reason}): saturation, read off the samples without a twin")
+    return Diagnosis(where="clipping" if members else "", cause=cause, cause_effects=members, shrink=0.0,
+                     gap_before=math.nan, gap_after=math.nan, stages_before={}, stages_after={}, effects=[],
                      equivalent=equivalent_groups(observable), unobservable=[e.name for e in hidden], null_gaps=[],
                      sensor=sensor, n_samples=n, n_fit=0, noise=math.nan, seconds=seconds, reason=reason)
 

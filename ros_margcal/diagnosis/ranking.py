@@ -147,15 +147,18 @@ def gap_with(twin: Twin, base: Baseline, effect: str, m: float, seeds: tuple[int
         return overall_gap(stages), stages
     # Gaussian negative log-likelihood per feature, z^2 + 2 log(s / s_base): a wider spread lowers z but
     # costs its log, so an effect cannot win by being vague
+    # a feature undefined for the twins (NaN spread: a fit that failed on every seed) is not widened and
+    # costs nothing, as ``stage_gaps`` leaves its z-score out
     wide = {}
     for k, v in sd.items():
         if k in base.sd and base.sd[k].shape == v.shape:
-            ref = np.maximum(base.sd[k], stage_floor(k, v.shape))
-            wide[k] = np.clip(v, base.sd[k], _MAX_WIDEN * ref)  # a few seeds: do not trust a spread far wider
+            ref = np.fmax(base.sd[k], stage_floor(k, v.shape))
+            own = np.where(np.isfinite(v), v, base.sd[k])
+            wide[k] = np.fmin(np.fmax(own, base.sd[k]), _MAX_WIDEN * ref)  # a few seeds: not far wider
     stages = stage_gaps(twin.features_rec.values, mean, wide)
     for name in list(stages):
         floor = stage_floor(name, wide[name].shape)
-        pen = 2.0 * np.log(np.maximum(wide[name], floor) / np.maximum(base.sd[name], floor))
+        pen = 2.0 * np.log(np.fmax(wide[name], floor) / np.fmax(base.sd[name], floor))
         stages[name] = float(np.sqrt(stages[name] ** 2 + float(np.mean(pen))))
     return overall_gap(stages), stages
 

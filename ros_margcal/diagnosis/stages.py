@@ -53,13 +53,13 @@ from numpy.typing import NDArray
 from scipy.linalg import solve_triangular
 from scipy.special import sph_harm_y
 
-from ..model.calibration import Calibration
 from ..model.errors import MargCalError
 from ..model.fitting import fit
 from .downstream import N_SET, validator_errors
+from .fit_checks import lm_diag, sym_fit
 
 __all__ = [
-    "STAGES", "STAGE_FLOORS", "StageFeatures", "rest_noise", "sh_basis", "sh_power", "stage_features",
+    "STAGES", "STAGE_FLOORS", "StageFeatures", "clipped_shares", "rest_noise", "sh_basis", "sh_power", "stage_features",
     "stage_floor", "stage_gaps"
 ]
 
@@ -135,17 +135,21 @@ def rest_noise(raw: Array) -> float:
 
 def _readout_features(raw: Array) -> dict[str, Array]:
     n = raw.shape[0]
-    uniq, rep, clip = [], [], []
+    uniq, rep = [], []
     same = np.diff(raw, axis=0) == 0
     for a in range(3):
         col = raw[:, a]
         uniq.append(np.unique(col).size / n)
         rep.append(float(same[:, a].mean()))
-        clip.append(float(np.mean((col == col.max()) | (col == col.min()))))
     return {
         "quantisation": np.array([_log10(float(np.mean(uniq))), float(np.mean(rep)), float(same.all(axis=1).mean())]),
-        "clipping": np.array([float(np.mean(clip))]),
+        "clipping": np.array([float(np.mean(clipped_shares(raw)))]),
     }
+
+
+def clipped_shares(raw: Array) -> Array:
+    """Per axis, the share of samples sitting exactly at the axis' largest or smallest reading (clipping)."""
+    return np.array([float(np.mean((col == col.max()) | (col == col.min()))) for col in raw.T])
 
 
 def sh_basis(dirs: Array, l_max: int = _L_MAX) -> Array:
@@ -166,15 +170,24 @@ def sh_basis(dirs: Array, l_max: int = _L_MAX) -> Array:
 
 
 def sh_power(residual: Array, basis: Array, l_max: int = _L_MAX) -> tuple[Array, Array]:
-    """Least-squares harmonic coefficients of ``residual`` and the RMS amplitude per degree ``l``.
+    """Least-squares harmonic coefficients of ``residual`` and its RMS amplitude per degree ``l`` on the samples.
+
+    The amplitude of degree ``l`` is the RMS over the samples of what the degrees up to ``l`` explain beyond
+    those up to ``l - 1`` (nested least squares). On directions that cover the sphere it is the RMS over
+    the sphere of the degree-l part, ``sqrt(sum_m c_lm^2 / 4 pi)``; on part of it (a band of tilts) the
+    harmonics are far from orthogonal and the coefficients, extrapolated to directions never seen, blow
+    up by orders of magnitude, while what each degree adds on the samples stays what the data show.
 
     Returns:
-        (coefficients ((l_max+1)^2,), amplitude (l_max+1,)) where amplitude[l] is the RMS over the
-        sphere of the degree-l part, ``sqrt(sum_m c_lm^2 / 4 pi)``.
+        (coefficients ((l_max+1)^2,), amplitude (l_max+1,)).
     """
     coef = _lstsq(basis, residual)
-    amp = np.array([math.sqrt(float(np.sum(coef[ell * ell:(ell + 1) ** 2] ** 2)) / (4 * math.pi))
-                    for ell in range(l_max + 1)])
+    prev = np.zeros_like(residual)
+    amp = np.zeros(l_max + 1)
+    for ell in range(l_max + 1):
+        cur = basis @ coef if ell == l_max else _explained(residual, basis[:, :(ell + 1) ** 2])
+        amp[ell] = math.sqrt(float(np.mean((cur - prev) ** 2)))
+        prev = cur
     return coef, amp
 
 
@@ -319,10 +332,7 @@ def stage_features(
         DegenerateDataError, ConvergenceError: the subsample cannot be fitted (e.g. a static recording).
     """
     pts = raw[sub]
-    if closed_form:
-        cal = fit(pts, model="diag", method="lin_auto", norm=norm)
-    else:
-        cal = fit(pts, model="diag", method="lm", norm=norm, max_iter=_MAX_ITER)
+    cal = fit(pts, model="diag", method="lin_auto", norm=norm) if closed_form else lm_diag(pts, norm)
     r_raw = cal.raw_radius
     h = cal.apply(pts)
     lengths = np.linalg.norm(h, axis=1)
@@ -331,7 +341,7 @@ def stage_features(
     noise_rel = rest_noise(raw) / r_raw
     values: dict[str, Array] = {"rest_noise": np.array([_log10(noise_rel)])}
     values.update(_readout_features(raw))
-    sym = _sym_fit(pts, norm, closed_form)
+    sym = sym_fit(pts, norm, closed_form)
     sym_rms = float(sym.stats.rms_relative) if sym is not None and sym.stats is not None else float("nan")
     values["residual_size"] = np.array([_log10(float(np.sqrt(np.mean(r**2)))), _log10(sym_rms)])
     basis = sh_basis(dirs)
@@ -341,7 +351,7 @@ def stage_features(
     if "residual_time" not in skip:
         values["residual_time"] = _time_features(r, basis, t[sub], tsub, basis @ coef)
     values["residual_tails"] = _tail_features(r - basis @ coef)
-    if validator is not None and sym is not None:
+    if validator is not None and sym is not None and not closed_form:  # its calibration set would not converge either
         pick = np.linspace(0, len(sub) - 1, min(N_SET, len(sub))).astype(np.intp)
         try:
             pred, meas = validator_errors(pts[pick], sym, validator)
@@ -351,15 +361,6 @@ def stage_features(
     for name in skip:
         values.pop(name, None)
     return StageFeatures(values=values, residual=r, dirs=dirs, t=t[sub], rest_noise=noise_rel)
-
-
-def _sym_fit(pts: Array, norm: float | None, closed_form: bool = False) -> Calibration | None:
-    try:
-        if closed_form:  # lm would run to its iteration limit on the data that needed the closed form
-            return fit(pts, model="sym", method="lin_auto", norm=norm)
-        return fit(pts, model="sym", method="lm", norm=norm, max_iter=_MAX_ITER)
-    except MargCalError:
-        return None
 
 
 def stage_gaps(

@@ -37,6 +37,7 @@ from ..sim.effects import check_effects, sensor_model
 from ..sim.simulation import simulate
 from .baseline_noise import ar1_noise, estimate_slow_noise, shaped_truth
 from .changes import OffsetChange
+from .fit_checks import IllConditionedFit, checked_sym, lm_diag, sym_fit
 from .stages import StageFeatures, rest_noise, stage_features
 from .twin_fits import (
     CHANGE_EVIDENCE,
@@ -283,9 +284,9 @@ def build_twin(
     closed_form = False
     searched = False  # whether the offset change has been searched (it is searched once)
     try:
-        truth = fit(pts[sub], model="diag", method="lm", norm=norm, sensor=sensor, max_iter=MAX_ITER)
+        truth = lm_diag(pts[sub], norm, sensor=sensor, max_iter=MAX_ITER)
         try:
-            best = fit(pts[sub], model="sym", method="lm", norm=norm, max_iter=MAX_ITER)
+            best = checked_sym(fit(pts[sub], model="sym", method="lm", norm=norm, max_iter=MAX_ITER), pts[sub], norm)
         except MargCalError as exc_sym:
             change, searched = _located_change(times, pts, sub, norm, sensor), True
             if change is not None:
@@ -295,7 +296,7 @@ def build_twin(
             best = truth
         h = best.apply(pts)
     except MargCalError as exc:
-        if not searched:
+        if not searched and not isinstance(exc, IllConditionedFit):  # an ill-conditioned fit is no sign of a change
             change = _located_change(times, pts, sub, norm, sensor)
         if change is not None:
             try:
@@ -356,13 +357,17 @@ def build_twin(
         msg = f"shape tolerance must be a non-negative fraction, got {shape_tolerance!r}"
         raise InputError(msg)
     if change is None and closed_form and shape_tolerance > 0 and best is truth:
-        try:  # lin_auto fits no cross terms: lm started from the closed form gives them on part of the sphere
-            shape = fit(pts[sub], model="sym", method="lm", norm=norm, init=truth, max_iter=_SHAPE_ITER)
+        # lin_auto fits no cross terms: lm started from the closed form gives them on part of the sphere, or
+        # where it does not converge (or ends off the optimum, ``checked_sym``) the algebraic fit
+        try:
+            shape = checked_sym(fit(pts[sub], model="sym", method="lm", norm=norm, init=truth, max_iter=_SHAPE_ITER),
+                                pts[sub], norm)
+        except MargCalError:
+            shape = sym_fit(pts[sub], norm, closed_form=True)
+        if shape is not None:
             truth = shaped_truth(truth, shape, shape_tolerance, cross_only=True)
-        except MargCalError as exc_shape:
-            log.info("no cross terms for the twin's shape: %s", exc_shape)
-    elif change is None:
-        truth = shaped_truth(truth, best, shape_tolerance)
+    elif change is None:  # a best fitted before the features needed the closed form: its cross terms only
+        truth = shaped_truth(truth, best, shape_tolerance, cross_only=closed_form)
     slow = (0.0, 1.0)
     if rest_noise_raw is None and "rest_noise" not in skipped and best.stats is not None:
         # a rest noise the caller measured (a static recording) is the sensor's whole noise model

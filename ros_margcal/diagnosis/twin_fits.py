@@ -22,6 +22,7 @@ from ..model.errors import DegenerateDataError, MargCalError
 from ..model.fitting import fit
 from ..sim.simulation import simulate
 from .changes import OffsetChange, locate_offset_change, moving_mask
+from .fit_checks import checked_sym, lm_diag
 from .stages import rest_noise
 
 __all__ = ["CHANGE_EVIDENCE", "MAX_ITER", "MIN_SAMPLES", "SMOOTH_WINDOW", "smooth_directions"]
@@ -81,21 +82,18 @@ def _side_fit(
     a magnet attached and removed again makes two changes), else the closed-form ``lin_auto`` fits
     (a side that covers only part of the sphere)."""
     try:
-        diag = fit(pts[idx], model="diag", method="lm", norm=norm, sensor=sensor, max_iter=MAX_ITER)
+        diag = lm_diag(pts[idx], norm, sensor=sensor, max_iter=MAX_ITER)
     except MargCalError:
         inner = locate_offset_change(times[idx], pts[idx]) if depth > 0 else None
         if inner is None:
             diag = fit(pts[idx], model="diag", method="lin_auto", norm=norm, sensor=sensor)
-            try:
-                return fit(pts[idx], model="sym", method="lin_auto", norm=norm), diag
-            except MargCalError:
-                return diag, diag
+            return diag, diag  # the directions of a side on part of the sphere: the baseline fit's
         ti = times[idx]
         span = float(np.ptp(ti))
         parts = [idx[ti < inner.t - _GUARD * span], idx[ti > inner.t + _GUARD * span]]
         return _side_fit(times, pts, max(parts, key=len), norm, sensor, depth - 1)
     try:
-        sym = fit(pts[idx], model="sym", method="lm", norm=norm, max_iter=MAX_ITER)
+        sym = checked_sym(fit(pts[idx], model="sym", method="lm", norm=norm, max_iter=MAX_ITER), pts[idx], norm)
     except MargCalError:
         sym = diag
     return sym, diag
@@ -136,9 +134,11 @@ def _change_survives_twin(
 def _closed_form_fits(
     pts: Array, sub: NDArray[np.intp], norm: float | None, sensor: str, exc: Exception,
 ) -> tuple[Calibration, Calibration, Array]:
-    """Best and baseline fits by the closed-form ``lin_auto`` (it always gives an answer on a recording
-    that turns), used when ``lm`` does not converge and no offset change explains why (a strong
-    non-ellipsoidal effect: clipping, a cubic non-linearity); the calibrated vectors of every sample.
+    """Best and baseline fits, both the closed-form ``lin_auto`` diag fit (it always gives an answer on a
+    recording that turns), used when ``lm`` does not converge and no offset change explains why (a strong
+    non-ellipsoidal effect: clipping, a cubic non-linearity; a band of tilts); the calibrated vectors of
+    every sample. The algebraic ``sym`` fit is not the best fit here: on part of the sphere it bends its
+    shape to what a non-linearity or a drift leaves, and the twin would carry that as its baseline.
 
     Raises:
         DegenerateDataError: the closed form fails too (e.g. a static recording).
@@ -149,12 +149,8 @@ def _closed_form_fits(
         msg = (f"the recording cannot be fitted ({exc}; closed form: {exc2}); a diagnosis needs a recording that "
                "turns the sensor through many directions (a static recording only gives rest noise and quantisation)")
         raise DegenerateDataError(msg) from exc2
-    try:
-        best = fit(pts[sub], model="sym", method="lin_auto", norm=norm)
-    except MargCalError:
-        best = truth
     log.info("lm does not converge (%s) and no offset change explains it: closed-form fits", exc)
-    return best, truth, best.apply(pts)
+    return truth, truth, truth.apply(pts)
 
 
 def _segment_fits(

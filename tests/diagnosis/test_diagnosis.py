@@ -49,7 +49,7 @@ def test_sh_power_finds_the_degree_of_a_pure_harmonic() -> None:
     r = 0.01 * basis[:, 6]  # an l = 2 function
     _, amp = sh_power(r, basis)
     assert np.argmax(amp) == 2
-    assert amp[2] > 100 * max(amp[0], amp[1], amp[3], amp[4])
+    assert amp[2] > 50 * max(amp[0], amp[1], amp[3], amp[4])  # on the samples: leakage ~ 1 / sqrt(n)
 
 
 def test_stage_gaps_are_z_scores_with_floors() -> None:

@@ -5,6 +5,7 @@ always a verdict, no offset change without evidence, and the pieces that make th
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from types import ModuleType
 
@@ -13,10 +14,13 @@ import pytest
 
 from ros_margcal.diagnosis import diagnose, locate_offset_change, stage_gaps
 from ros_margcal.diagnosis.baseline_noise import ar1_noise, estimate_slow_noise, shaped_truth
-from ros_margcal.diagnosis.ranking import PLAIN_GROUPS, EffectFit, separate_close_calls
+from ros_margcal.diagnosis.fit_checks import lm_diag, sym_fit
+from ros_margcal.diagnosis.ranking import PLAIN_GROUPS, EffectFit, gap_with, separate_close_calls
 from ros_margcal.diagnosis.stages import StageFeatures
-from ros_margcal.diagnosis.twin import subsample
+from ros_margcal.diagnosis.twin import build_twin, subsample
 from ros_margcal.model.calibration import Calibration
+from ros_margcal.model.errors import ConvergenceError
+from ros_margcal.model.fitting import fit
 from ros_margcal.recordings.recording import Recording
 
 VERDICTS = {"none", "unexplained", "ellipsoid_shape", "slow_drift", "temperature", "saturation", "nonlinearity",
@@ -181,3 +185,55 @@ def test_clipping_on_a_band_is_saturation(independent: ModuleType) -> None:
     d = diagnose(rec, sensor="mag", norm=norm, quick=True, shape_tolerance=0.05)
     assert d.cause == "saturation"
     assert d.best is not None and 0.0 < d.best.magnitude < 0.2
+
+
+def test_ill_conditioned_lm_fit_is_refused(independent: ModuleType) -> None:
+    """On a ±20° band of tilts lm's bias-corrected diag fit can end far off the least-squares optimum (here
+    several times the closed form's residual): ``lm_diag`` refuses it, so recording and twins are measured
+    with the closed form, and the algebraic fit gives the cross terms ``lin_auto`` cannot."""
+    rec = independent.generate("mag", "band", 60.0, 50.0, 2, effect="none", colored_noise=0.0, soft_iron=0.0)
+    pts, norm = rec["xyz"], float(rec["truth"]["norm"])
+
+    def rms(cal: Calibration) -> float:
+        return float(np.sqrt(np.mean((np.linalg.norm(cal.apply(pts), axis=1) / norm - 1.0) ** 2)))
+
+    closed = fit(pts, model="diag", method="lin_auto", norm=norm)
+    lm = fit(pts, model="diag", method="lm", norm=norm, max_iter=400)
+    assert rms(lm) > 2.0 * rms(closed)  # the case: lm converged, to the wrong place
+    with pytest.raises(ConvergenceError):
+        lm_diag(pts, norm)
+    sym = sym_fit(pts, norm, closed_form=True)
+    assert sym is not None and sym.model == "sym"
+    assert rms(sym) <= 1.05 * rms(closed)
+
+
+def test_band_recording_gives_finite_gaps_on_the_effects_own_spread(independent: ModuleType) -> None:
+    """Regression: a band recording (closed-form fits) had a NaN feature (no sym fit) whose NaN spread made
+    ``gap_with(own_spread=True)`` NaN, so the leading effects were never re-ranked on every seed."""
+    rec, norm = _recording(independent, "soft_iron", motion="band", seed=1)
+    twin = build_twin(rec.t, rec.raw, sensor="mag", norm=norm, shape_tolerance=0.05)
+    base = twin.spread(4)
+    assert twin.closed_form
+    assert all(np.isfinite(v).all() for v in twin.features_rec.values.values())
+    gap, stages = gap_with(twin, base, "soft_iron", 0.05, base.seeds, own_spread=True)
+    assert math.isfinite(gap) and gap > 0
+    assert stages and all(math.isfinite(g) for g in stages.values())
+    # a feature undefined on every twin (NaN spread) costs nothing rather than poisoning the stage
+    base.sd["residual_size"] = np.full_like(base.sd["residual_size"], np.nan)
+    gap_nan, _ = gap_with(twin, base, "soft_iron", 0.05, base.seeds, own_spread=True)
+    assert math.isfinite(gap_nan)
+
+
+def test_axis_clipped_throughout_is_saturation_without_a_twin(independent: ModuleType) -> None:
+    """On a band of tilts a clip level of 0.72 field radii holds one axis at its limit throughout: the points
+    are coplanar and no twin can be fitted (this was ``unexplained`` in no time); the read-out alone shows
+    the clipping, so the verdict is saturation with the reason. An unclipped recording too short for a twin
+    stays ``unexplained``."""
+    rec, norm = _recording(independent, "saturation", motion="band", duration=60.0, magnitude=0.72)
+    d = diagnose(rec, sensor="mag", norm=norm, quick=True)
+    assert d.twin is None  # no twin: the read-out verdict
+    assert d.cause == "saturation"
+    assert "clipping" in d.reason and "no twin can be fitted" in d.reason
+    assert json.dumps(d.to_dict(), default=float)
+    short, _ = _recording(independent, "none", duration=0.6)
+    assert diagnose(short, sensor="mag", norm=norm, quick=True).cause == "unexplained"
