@@ -42,6 +42,7 @@ from types import ModuleType
 
 import numpy as np
 
+from ros_margcal.model.fitting_geometric import block_means
 from ros_margcal.model.fitting_prior import broad_prior, fit_with_prior
 from ros_margcal.model.heading import attitudes, heading_gradient, heading_p95, heading_std_deg, inclination_deg
 from ros_margcal.stream.observable import NORM_REL_STD, sphere_radius, tilt_seen_deg
@@ -69,10 +70,7 @@ def decimate(xyz: np.ndarray, how: str) -> tuple[np.ndarray, np.ndarray | None]:
     the block's spread (mean squared distance from its mean: the stream's series)."""
     if how == "pick":
         return xyz[::BLOCK], None
-    m = len(xyz) // BLOCK * BLOCK
-    blocks = xyz[:m].reshape(-1, BLOCK, 3)
-    means = blocks.mean(axis=1)
-    return means, np.einsum("ijk,ijk->i", blocks - means[:, None], blocks - means[:, None]) / BLOCK
+    return block_means(xyz[: len(xyz) // BLOCK * BLOCK], BLOCK)
 
 
 def _grid(gen: ModuleType, tilt: float, n_yaw: int = 72) -> np.ndarray:

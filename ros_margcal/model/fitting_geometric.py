@@ -37,11 +37,21 @@ from numpy.typing import ArrayLike, NDArray
 from .errors import InputError
 from .fitting_core import unpack
 
-__all__ = ["geometric", "norm_spreads"]
+__all__ = ["block_means", "geometric", "norm_spreads"]
 
 Array = NDArray[np.float64]
 
 _OFF_J, _OFF_K = [0, 0, 1], [1, 2, 2]  # (x, y), (x, z), (y, z): the off-diagonal entries of W
+
+
+def block_means(xyz: ArrayLike, k: int) -> tuple[Array, Array]:
+    """Means of consecutive blocks of ``k`` samples (the first ``len % k`` dropped) and each block's spread,
+    the mean squared distance of its samples from their mean: (N, 3) and (N,)."""
+    pts = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+    blocks = pts[len(pts) % k:].reshape(-1, k, 3)
+    means = blocks.mean(axis=1)
+    dev = blocks - means[:, None]
+    return means, np.einsum("ijk,ijk->i", dev, dev) / k
 
 
 def norm_spreads(spread: ArrayLike | None, m: int, matrix: ArrayLike, n0: float) -> Array | None:

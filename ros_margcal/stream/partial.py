@@ -40,6 +40,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..model.calibration import Calibration
+from ..model.fitting_geometric import block_means
 from .config import PipelineConfig
 from .observable import (
     AZIMUTH_SECTORS,
@@ -160,7 +161,6 @@ class PartialCalibration:
     def _watch_azimuths(self, cal: Calibration | None, series: Array | None) -> None:
         """After a fit refused on the azimuths turned through: watch the new series points' azimuths under
         its calibration (``PARTIAL_GROWTH_MAX``)."""
-        self._az_watch = None
         if cal is None or series is None or not len(series):
             return
         w, b = np.asarray(cal.matrix, dtype=np.float64), np.asarray(cal.offset, dtype=np.float64)
@@ -225,11 +225,7 @@ class PartialCalibration:
         series, spread = self._series_points()
         early = len(series) < self.config.min_points
         if early:  # the recent samples until the series is long enough, as block means of EARLY_POINTS at most
-            recent = np.array(self._recent_v, dtype=np.float64).reshape(-1, 3)
-            k = -(-len(recent) // self.EARLY_POINTS)
-            blocks = recent[len(recent) % k:].reshape(-1, k, 3)
-            series = blocks.mean(axis=1)
-            spread = np.einsum("ijk,ijk->i", blocks - series[:, None], blocks - series[:, None]) / k
+            series, spread = block_means(self._recent_v, -(-len(self._recent_v) // self.EARLY_POINTS))
         return {**job, "partial": True, "series": series, "spread": spread, "prior": self._prior, "early": early,
                 "sigma": self._early_sigma if early else self._partial_sigma,
                 "start": None if (early or self._changed) else self._partial_start,  # a sensor change: every start

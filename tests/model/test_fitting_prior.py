@@ -25,9 +25,9 @@ def _ground(independent: ModuleType, seed: int, tilt: float, seconds: float = 30
                                 symmetric_soft_iron=True)
 
 
-def _block_means(xyz: np.ndarray, k: int = 10) -> np.ndarray:
-    """50 Hz to 5 Hz by averaging each block of ``k`` samples (the series the fit is meant for)."""
-    return xyz[: len(xyz) // k * k].reshape(-1, k, 3).mean(axis=1)
+def _block_spread(xyz: np.ndarray, k: int = 10) -> tuple[np.ndarray, np.ndarray]:
+    """50 Hz to 5 Hz: block means and their spreads, as the stream's series (the end trimmed to whole blocks)."""
+    return fg.block_means(xyz[: len(xyz) // k * k], k)
 
 
 def test_full_sphere_map_agrees_with_the_least_squares_fit() -> None:
@@ -49,7 +49,7 @@ def test_ground_robot_gets_a_level_heading_within_a_degree(independent: ModuleTy
     (coloured-noise aware) is never optimistic by more than 1.5x, and at most 3x (or 0.5 deg) pessimistic."""
     rec = _ground(independent, seed, tilt)
     tr = rec["truth"]
-    pts = _block_means(rec["xyz"])
+    pts, _ = _block_spread(rec["xyz"])
     cal = fit_with_prior(pts, broad_prior(pts, tr["norm"]), time_ordered=True).calibration
     measured = independent.heading_p95(cal.matrix, cal.offset, tr, tilt_deg=0.0)
     predicted = heading_p95(cal, tilt_deg=0.0, inclination=inclination_deg(cal, pts))
@@ -122,13 +122,6 @@ def test_predicted_heading_error_scales_with_the_covariance_and_matches_monte_ca
     assert 0.5 * np.median(errs) < p < 2.0 * np.median(errs)
     with pytest.raises(InputError):
         heading_p95(Calibration.identity(n))
-
-
-def _block_spread(xyz: np.ndarray, k: int = 10) -> tuple[np.ndarray, np.ndarray]:
-    """Block means and each block's spread (mean squared distance from its mean), as the stream's series."""
-    blocks = xyz[: len(xyz) // k * k].reshape(-1, k, 3)
-    means = blocks.mean(axis=1)
-    return means, np.einsum("ijk,ijk->i", blocks - means[:, None], blocks - means[:, None]) / k
 
 
 def test_weighting_by_the_coloured_noise_lowers_the_level_error(independent: ModuleType) -> None:
@@ -260,7 +253,7 @@ def test_an_uncertain_norm_is_estimated_and_widens_the_covariance(independent: M
     pts = rec["xyz"][::5]
     cal = fit_with_prior(pts, broad_prior(pts, 1.05 * n), norm_rel_std=0.1, time_ordered=True).calibration
     assert cal.norm == pytest.approx(n, rel=0.005)
-    ring = _block_means(_ground(independent, 11, 5.0, seconds=120.0)["xyz"])
+    ring, _ = _block_spread(_ground(independent, 11, 5.0, seconds=120.0)["xyz"])
     prior = broad_prior(ring, n)
     fixed = fit_with_prior(ring, prior, time_ordered=True).calibration
     free = fit_with_prior(ring, prior, time_ordered=True, norm_rel_std=0.05).calibration
