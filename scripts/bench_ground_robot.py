@@ -10,7 +10,9 @@ yaw, level and with roll/pitch in {-30, 0, 30} deg, tilt compensation with the t
   reported separately (they were seen once a session while changing the stream: not pristine);
   ``--fresh`` adds seeds 300-309 with 20 uT hard iron (a seed range and magnitude no decision looked at
   when they were added; run three times in that session, each after changes decided on the other seeds)
-  and seeds 600-609 with 25 uT (added later, run once at the end of the session that added them).
+  and seeds 600-609 with 25 uT (added later, run once at the end of the session that added them), and
+  seeds 700-709 with 28 uT (added with ``--gyro``, the gyro-aided fit, run once with and once without
+  the gyro at the end of that session).
   Per case: time of the first calibration, its measured level p95, the worst
   published level p95, and at the end the measured / predicted level and 30 deg p95 and their ratio.
 - ``tumble``: time to the first calibration and to the first with a measured 30 deg p95 <= 1 deg (median).
@@ -21,7 +23,8 @@ yaw, level and with roll/pitch in {-30, 0, 30} deg, tilt compensation with the t
 
 Runs on any version of the package (new status fields are read with ``getattr``), so the figures of the
 starting commit can be measured with ``PYTHONPATH=<old checkout> python scripts/bench_ground_robot.py``.
-Run: ``python scripts/bench_ground_robot.py [--quick]`` (about a minute; ``--quick`` two seeds a group).
+``--gyro``: every magnetometer case also gets the generator's gyro rates (``model/fitting_gyro.py``).
+Run: ``python scripts/bench_ground_robot.py [--quick] [--gyro]`` (minutes; ``--quick`` two seeds a group).
 """
 
 from __future__ import annotations
@@ -37,8 +40,11 @@ from ros_margcal.stream.calibrator import EventKind, PipelineConfig, SensorCalib
 
 TUNING = (1, 2, 3, 11, 12, 13)
 HELD_OUT = tuple(range(100, 110))
-FRESH = {"fresh": (tuple(range(300, 310)), 20e-6), "fresh-2": (tuple(range(600, 610)), 25e-6)}
+FRESH = {"fresh": (tuple(range(300, 310)), 20e-6), "fresh-2": (tuple(range(600, 610)), 25e-6),
+         "fresh-3": (tuple(range(700, 710)), 28e-6)}
 """Fresh groups: seeds and hard iron."""
+MAG_GYRO = False
+"""``--gyro``: the magnetometer calibrator gets the generator's gyro rates too (the gyro-aided partial fit)."""
 OVERRIDES: dict[str, Any] = {}
 """Options of the magnetometer calibrator (``--set name=value``)."""
 
@@ -46,7 +52,8 @@ OVERRIDES: dict[str, Any] = {}
 def _run(rec: dict[str, Any], sensor: str = "mag", gyro: bool = False) -> tuple[SensorCalibrator, list[Any]]:
     cal = SensorCalibrator(sensor, PipelineConfig.for_sensor(sensor, **OVERRIDES) if sensor == "mag" else None)
     events = []
-    g = rec["gyro"] if (gyro and rec.get("gyro") is not None) else [None] * len(rec["t"])
+    use = (gyro or (sensor == "mag" and MAG_GYRO)) and rec.get("gyro") is not None
+    g = rec["gyro"].tolist() if use else [None] * len(rec["t"])
     for t, v, w in zip(rec["t"].tolist(), rec["xyz"], g, strict=True):
         events += [e for e in cal.push(t, v, w) if e.kind is EventKind.CALIBRATED]
     return cal, events
@@ -178,13 +185,19 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--only", choices=("ground", "rich", "accel"), help="one group of cases")
     p.add_argument("--fresh", action="store_true",
                    help="also the fresh ground-robot seeds 300-309 (20 uT hard iron) and 600-609 (25 uT)")
+    p.add_argument("--gyro", action="store_true",
+                   help="feed the generator's gyro rates to the magnetometer too (the gyro-aided partial fit)")
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                    help="a magnetometer option, e.g. max_heading_p95_deg=2.5 (a number or true/false)")
     args = p.parse_args(argv)
     for item in args.set:
         name, value = item.split("=", 1)
         OVERRIDES[name] = value == "true" if value in ("true", "false") else (int(value) if value.isdigit() else float(value))
+    global MAG_GYRO  # one switch for every magnetometer case of the run
+    MAG_GYRO = args.gyro
     gen = independent_generator()
+    if args.gyro:
+        print("the magnetometer calibrator gets the gyro rates (gyro-aided partial fit)")
     if args.only in (None, "ground"):
         ground(gen, args.quick, args.seconds, args.fresh)
     if args.only in (None, "rich"):

@@ -59,6 +59,13 @@ independent generator.
 **Block means.** A stream's series holds the mean of each short block of samples; with each block's
 spread (``spread``) a point is fitted to the norm its mean should have (``fitting_geometric``).
 
+**Gyro.** With the body rates of consecutive raw samples (``gyro``: ``fitting_gyro``'s blocks) the turn
+the gyro measured must turn the calibrated field: those residuals join the norm residuals at their own
+noise (MAD, re-estimated with ``sigma``), with the gyro bias as three more parameters (prior sd
+``GYRO_BIAS_STD``) marginalised out of the covariance. A ring then determines the vertical terms too. A
+gyro that at the solution accounts for less than ``MIN_EXPLAINED`` of the field's turning (another frame)
+is dropped and the fit redone without it.
+
 **Prior.** The last accepted calibration with its covariance (inflated by ``inflate`` so the data can
 move it), or, with none, ``broad_prior``: zero offset and identity matrix scaled to the data's mean
 radius, with standard deviations ``BROAD_OFFSET_STD`` times the norm for the offset and
@@ -76,6 +83,7 @@ default: the ground-robot heading error at +-30 deg is a third of the predicted 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -87,6 +95,7 @@ from .calibration import Calibration, FitStats
 from .errors import ConvergenceError, DegenerateDataError, InputError, as_points
 from .fitting_core import mad_sigma, pack, parameter_names, resjac, unpack
 from .fitting_geometric import geometric, norm_spreads
+from .fitting_gyro import GYRO_BIAS_STD, MIN_EXPLAINED, GyroBlocks, explained, gyro_residuals
 from .fitting_noise import Whitener, noise_model, whitener
 
 __all__ = ["BROAD_MATRIX_STD", "BROAD_OFFSET_STD", "UPDATED_VARIANCE_RATIO", "PriorFit", "broad_prior", "fit_with_prior",
@@ -121,6 +130,11 @@ class PriorFit:
         iterations: Levenberg-Marquardt iterations.
         residual_sigma: the noise of the residuals at the solution (MAD): ``sigma`` when it was estimated;
             with a given ``sigma``, the check that it still fits the data (and the next fit's ``sigma``).
+        gyro_explained: with gyro blocks, the share of the field's change within them the gyro accounts for
+            at the solution (``fitting_gyro.explained``; nan without); below ``MIN_EXPLAINED`` the gyro was
+            not used (``gyro_used``) and the fit is the magnetometer's alone.
+        gyro_used: the gyro blocks are part of the fit.
+        gyro_bias: their estimated bias, rad/s (zeros when not used).
     """
 
     calibration: Calibration
@@ -131,6 +145,9 @@ class PriorFit:
     sigma: float
     iterations: int
     residual_sigma: float = math.nan
+    gyro_explained: float = math.nan
+    gyro_used: bool = False
+    gyro_bias: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     @property
     def partial(self) -> bool:
@@ -177,7 +194,7 @@ def _prior_parts(prior: Calibration, inflate: float) -> tuple[Array, Array]:
 def fit_with_prior(points: ArrayLike, prior: Calibration, *, sigma: float | None = None, inflate: float = 1.0,
                    max_iter: int = 200, stamp: float = 0.0, time_ordered: bool = False,
                    norm_rel_std: float = 0.0, start: Calibration | None = None,
-                   spread: ArrayLike | None = None) -> PriorFit:
+                   spread: ArrayLike | None = None, gyro: GyroBlocks | None = None) -> PriorFit:
     """MAP fit of the symmetric model to ``points`` (N, 3) given a prior calibration (module docstring).
 
     Args:
@@ -199,6 +216,10 @@ def fit_with_prior(points: ArrayLike, prior: Calibration, *, sigma: float | None
         spread: per point, when the points are block means, the mean squared distance of the block's raw
             samples from their mean (raw units squared): each point is fitted to the norm it should have
             (module docstring, **Block means**). None: single samples.
+        gyro: blocks of consecutive raw samples with the body rates (``fitting_gyro``): their residuals join
+            the fit, with the gyro bias as three more parameters (prior sd ``GYRO_BIAS_STD``), weighed by
+            their own noise (MAD); the covariance is marginal over the bias. When at the solution the gyro
+            accounts for less than ``MIN_EXPLAINED`` of the field's change, the fit is redone without it.
 
     Raises:
         InputError: bad points, prior or argument; DegenerateDataError: fewer than 3 points;
@@ -232,28 +253,44 @@ def fit_with_prior(points: ArrayLike, prior: Calibration, *, sigma: float | None
         starts = [np.r_[th, float(start.norm)] if theta0.size == 10 else th]  # a Calibration is finite
     else:
         starts = _starts(pts, theta0, prior.raw_radius)
-    theta, s, iters = _best_solve(z, starts, theta0, info0, chol, n0, sigma, floor, max_iter, sp)
-    r, jt = geometric(z, theta, n0, sp)
+    term = None
+    if gyro is not None and len(gyro):
+        at = theta0.size  # the gyro bias follows the calibration's parameters (and the norm)
+        theta0, info0 = np.r_[theta0, np.zeros(3)], np.pad(info0, (0, 3))
+        info0[at:, at:] = np.eye(3) / GYRO_BIAS_STD**2
+        chol = np.linalg.cholesky(info0).T
+        starts = [np.r_[th, np.zeros(3)] for th in starts]
+        term = _GyroTerm(gyro, 1.0, at)
+    theta, s, iters = _best_solve(z, starts, theta0, info0, chol, n0, sigma, floor, max_iter, sp, term)
+    geo = theta if term is None else theta[:term.at]
+    r = geometric(z, geo, n0, sp)[0]
     model = noise_model(r) if time_ordered else None
-    if model is None:
-        data_info = jt @ jt.T / (s * s)
-    else:  # coloured: generalised least squares from the unweighted solution (module docstring)
-        white = whitener(model)
-        s_e = max(mad_sigma(white(r)), floor)
-        theta, k = _lm(z, theta, theta0, info0, n0, s_e, max_iter, sp, white)
+    white = None if model is None else whitener(model)  # coloured: generalised least squares (module docstring)
+    s_w = s if white is None else max(mad_sigma(white(r)), floor)
+    if white is not None or term is not None:  # one more solve: weighted, and the gyro at its own noise
+        if term is not None:
+            term.reweigh(theta, s_w, floor)
+        theta, k = _lm(z, theta, theta0, info0, n0, s_w, max_iter, sp, white, term)
         if not np.all(np.isfinite(theta)):
             msg = "MAP fit found no finite solution"
             raise ConvergenceError(msg)
         iters += k
-        r, jt = geometric(z, theta, n0, sp)
-        jw = white(jt)
-        data_info = jw @ jw.T / (s_e * s_e)
+    share_g = math.nan
+    if term is not None:
+        share_g = explained(gyro, gyro_residuals(gyro, *unpack(theta[:9], "sym"), theta[term.at:])[0])
+        if not share_g >= MIN_EXPLAINED:  # rate and reading in different frames: the magnetometer alone
+            alone = fit_with_prior(points, prior, sigma=sigma, inflate=inflate, max_iter=max_iter, stamp=stamp,
+                                   time_ordered=time_ordered, norm_rel_std=norm_rel_std, start=start, spread=spread)
+            return dataclasses.replace(alone, gyro_explained=share_g)
+    r = geometric(z, theta if term is None else theta[:term.at], n0, sp)[0]
+    _, jt = _residuals(z, theta, n0, sp, white, term)
+    data_info = jt @ jt.T / (s_w * s_w)
     post = np.linalg.inv(data_info + info0)[:9, :9]
     post = 0.5 * (post + post.T)
     prior_var = np.diag(np.linalg.inv(info0))[:9]
     share = 1.0 - np.clip(np.diag(post) / prior_var, 0.0, 1.0)
     updated = tuple(nm for nm, sh in zip(NAMES, share, strict=True) if sh >= 1.0 - UPDATED_VARIANCE_RATIO)
-    n = float(theta[9]) if theta.size == 10 else n0
+    n = float(theta[9]) if theta0.size in (10, 13) else n0
     b, mat = unpack(theta[:9], "sym")
     rn, _ = resjac(z, theta[:9], "sym", n)
     rms = float(np.sqrt(np.mean(rn * rn)))
@@ -264,11 +301,14 @@ def fit_with_prior(points: ArrayLike, prior: Calibration, *, sigma: float | None
     return PriorFit(calibration=cal, prior=prior, updated=updated,
                     from_prior=tuple(nm for nm in NAMES if nm not in updated),
                     data_share=dict(zip(NAMES, share.tolist(), strict=True)), sigma=s, iterations=iters,
-                    residual_sigma=s if sigma is None else max(mad_sigma(r), floor))
+                    residual_sigma=s if sigma is None else max(mad_sigma(r), floor), gyro_explained=share_g,
+                    gyro_used=term is not None,
+                    gyro_bias=(0.0, 0.0, 0.0) if term is None else tuple(float(x) for x in theta[term.at:]))
 
 
 def _best_solve(z: Array, starts: list[Array], theta0: Array, info0: Array, chol: Array, n0: float,
-                sigma: float | None, floor: float, max_iter: int, sp: Array | None) -> tuple[Array, float, int]:
+                sigma: float | None, floor: float, max_iter: int, sp: Array | None,
+                term: _GyroTerm | None = None) -> tuple[Array, float, int]:
     """The unweighted MAP solve from each start; the lowest posterior cost wins, every start judged at the
     lowest noise found: theta, sigma, evaluations.
 
@@ -278,14 +318,17 @@ def _best_solve(z: Array, starts: list[Array], theta0: Array, info0: Array, chol
     sols = []
     for th_start in starts:
         try:
-            sols.append(_solve(z, th_start, theta0, info0, n0, sigma, floor, max_iter, sp))
+            sols.append(_solve(z, th_start, theta0, info0, n0, sigma, floor, max_iter, sp, term))
         except (np.linalg.LinAlgError, ValueError, FloatingPointError):
             continue
     if not sols:
         msg = "MAP fit found no finite solution from any start"
         raise ConvergenceError(msg)
     s_ref = min(sol[1] for sol in sols)
-    return min(sols, key=lambda sol: _cost(z, sol[0], theta0, chol, n0, s_ref, sp))
+    best = min(sols, key=lambda sol: _cost(z, sol[0], theta0, chol, n0, s_ref, sp, term))
+    if term is not None:
+        term.reweigh(best[0], s_ref, floor)
+    return best
 
 
 def _starts(pts: Array, theta0: Array, radius: float) -> list[Array]:
@@ -322,15 +365,18 @@ def _sphere_centres(pts: Array, radius: float) -> tuple[list[Array], bool]:
 
 
 def _solve(z: Array, start: Array, theta0: Array, info0: Array, n: float, sigma: float | None, floor: float,
-           max_iter: int, sp: Array | None = None) -> tuple[Array, float, int]:
-    """One MAP solve from ``start`` (sigma re-estimated between rounds unless given): theta, sigma, evaluations."""
+           max_iter: int, sp: Array | None = None, term: _GyroTerm | None = None) -> tuple[Array, float, int]:
+    """One MAP solve from ``start`` (sigma, and the gyro's weight, re-estimated between rounds unless sigma
+    is given): theta, sigma, evaluations."""
     theta, iters = start.copy(), 0
     s = sigma
     for _ in range(1 if sigma is not None else 3):
         if sigma is None:
-            s = max(mad_sigma(geometric(z, theta, n, sp)[0]), floor)
+            s = max(mad_sigma(geometric(z, theta if term is None else theta[:term.at], n, sp)[0]), floor)
         assert s is not None
-        theta, k = _lm(z, theta, theta0, info0, n, s, max_iter, sp)
+        if term is not None:
+            term.reweigh(theta, s, floor)
+        theta, k = _lm(z, theta, theta0, info0, n, s, max_iter, sp, None, term)
         iters += k
         if not np.all(np.isfinite(theta)):
             msg = "non-finite solution"
@@ -340,16 +386,16 @@ def _solve(z: Array, start: Array, theta0: Array, info0: Array, n: float, sigma:
 
 
 def _lm(z: Array, theta: Array, theta0: Array, info0: Array, n: float, s: float, max_iter: int,
-        sp: Array | None = None, white: Whitener | None = None) -> tuple[Array, int]:
+        sp: Array | None = None, white: Whitener | None = None, term: _GyroTerm | None = None) -> tuple[Array, int]:
     """Levenberg-Marquardt on ``S(theta)`` through its normal equations: ``(H + lam diag H) step = -g`` with
     ``H = J^T J / s^2 + P_0^-1`` (10 x 10 at most), one residual-and-Jacobian evaluation per trial, the damping
     updated from the ratio of the actual to the predicted decrease (Nielsen's rule); stops when a step
     lowers (or its quadratic model promises to lower) ``S`` by less than ``_LM_FTOL`` of it, or moves
     ``theta`` by less than ``_LM_XTOL`` of its size. (MINPACK's QR of the stacked (N + P) x P system gave the
     same solutions at several times the cost.) ``white``: residuals and Jacobian pass through this filter
-    (generalised least squares; ``s`` is then the whitened residuals' noise)."""
+    (generalised least squares; ``s`` is then the whitened residuals' noise); ``term``: the gyro's residuals join."""
     w = 1.0 / (s * s)
-    r, jt = _residuals(z, theta, n, sp, white)
+    r, jt = _residuals(z, theta, n, sp, white, term)
     dp = theta - theta0
     cost = w * float(r @ r) + float(dp @ info0 @ dp)
     lam, nu, evals = 1e-3, 2.0, 1
@@ -370,7 +416,7 @@ def _lm(z: Array, theta: Array, theta0: Array, info0: Array, n: float, s: float,
         if pred <= _LM_FTOL * cost or float(np.linalg.norm(step)) <= _LM_XTOL * (float(np.linalg.norm(theta)) + _LM_XTOL):
             break  # the quadratic model promises (next to) nothing: converged, no evaluation spent on it
         cand = theta + step
-        r2, jt2 = _residuals(z, cand, n, sp, white)
+        r2, jt2 = _residuals(z, cand, n, sp, white, term)
         evals += 1
         dp2 = cand - theta0
         cost2 = w * float(r2 @ r2) + float(dp2 @ info0 @ dp2)
@@ -388,15 +434,42 @@ def _lm(z: Array, theta: Array, theta0: Array, info0: Array, n: float, s: float,
     return theta, evals
 
 
-def _residuals(z: Array, theta: Array, n: float, sp: Array | None, white: Whitener | None) -> tuple[Array, Array]:
-    """``fitting_geometric.geometric``, through the whitening filter when one is given."""
-    r, jt = geometric(z, theta, n, sp)
-    return (r, jt) if white is None else (white(r), white(jt))
+def _residuals(z: Array, theta: Array, n: float, sp: Array | None, white: Whitener | None,
+               term: _GyroTerm | None = None) -> tuple[Array, Array]:
+    """``fitting_geometric.geometric``, through the whitening filter when one is given, and the gyro's
+    residuals after them, brought to the same noise (``_GyroTerm.weight``)."""
+    r, jt = geometric(z, theta if term is None else theta[:term.at], n, sp)
+    if white is not None:
+        r, jt = white(r), white(jt)
+    if term is None:
+        return r, jt
+    b, mat = unpack(theta[:9], "sym")
+    rg, jg = gyro_residuals(term.blocks, b, mat, theta[term.at:])
+    full = np.zeros((theta.size, r.size + rg.size))
+    full[:term.at, :r.size] = jt
+    full[:9, r.size:] = term.weight * jg[:9]
+    full[term.at:, r.size:] = term.weight * jg[9:]
+    return np.concatenate([r, term.weight * rg]), full
 
 
-def _cost(z: Array, theta: Array, theta0: Array, chol: Array, n: float, s: float, sp: Array | None = None) -> float:
+@dataclass
+class _GyroTerm:
+    """The gyro blocks of a fit, the weight that brings their residuals' noise to the norm residuals' (``s /
+    s_g``, ``s_g`` their MAD noise, re-estimated with ``s``), and where the gyro bias starts in ``theta``."""
+
+    blocks: GyroBlocks
+    weight: float
+    at: int
+
+    def reweigh(self, theta: Array, s: float, floor: float) -> None:
+        rg = gyro_residuals(self.blocks, *unpack(theta[:9], "sym"), theta[self.at:])[0]
+        self.weight = s / max(mad_sigma(rg), floor)
+
+
+def _cost(z: Array, theta: Array, theta0: Array, chol: Array, n: float, s: float, sp: Array | None = None,
+          term: _GyroTerm | None = None) -> float:
     """The posterior cost ``S(theta)`` at noise ``s``."""
-    r = geometric(z, theta, n, sp)[0] / s
+    r = _residuals(z, theta, n, sp, None, term)[0] / s
     dp = chol @ (theta - theta0)
     return float(r @ r + dp @ dp)
 

@@ -24,6 +24,11 @@ Status and services use the default group. ``main`` spins a ``MultiThreadedExecu
 thread per group, so a fit never delays a sample callback, and a validation only the callbacks of
 its own sensor; with a single-threaded executor the node works the same, only serially.
 
+The magnetometer's gyro-aided fit (``gyro_aided``, ``model/fitting_gyro.py``) takes the angular rate of
+the latest Imu message with each MagneticField message whose header stamp is within ``GYRO_PAIR_S`` of it
+and whose ``frame_id`` is the same (the rate must be in the magnetometer's frame; with the accelerometer
+disabled there is no Imu subscription and no rate).
+
 Sample times come from the header stamp or the receive time (``stamp_source``: ``auto`` uses the
 header stamp until it is zero or stops increasing, then the receive time, with one warning).
 
@@ -57,7 +62,7 @@ from std_srvs.srv import Trigger
 from ..model.calibration_file import load_calibrations, save_calibrations
 from ..model.errors import CalibrationFileError, ConfigError
 from ..stream.calibrator import SensorCalibrator
-from ..stream.config import PipelineConfig
+from ..stream.config import GYRO_PAIR_S, PipelineConfig
 from ..stream.status import EventKind, Level
 from ..validation.shipped import load_validator
 from .messages import calibrate_imu, calibrate_mag, calibration_to_string, imu_to_numpy, mag_to_numpy, status_to_diagnostic
@@ -93,6 +98,7 @@ _FLOAT_PARAMS: dict[str, tuple[float, float, str]] = {
 _BOOL_PARAMS: dict[str, str] = {
     "partial_fit": "fit what the motion makes observable (a ring or band) when the full validator refuses",
     "early_fit": "publish a first MAP fit on rich motion once its predicted heading error is small",
+    "gyro_aided": "magnetometer: the Imu angular rate (same frame_id, stamps within 20 ms) joins the partial fit",
 }
 _INT_PARAMS: dict[str, tuple[int, int, str]] = {
     "min_points": (4, 100000, "fewest buffered samples for a fit"),
@@ -154,6 +160,7 @@ class MargCalNode(Node):
         self._publish_raw = bool(self.get_parameter("publish_uncalibrated").value)  # read per message: cached
         self._cals: dict[str, SensorCalibrator] = {}
         self._frame: dict[str, str] = dict.fromkeys(SENSORS, "")
+        self._rate: tuple[float, str, Any] | None = None  # the latest Imu: stamp, frame_id, angular rate
         self._last_rx: dict[str, float] = {}
         self._locks = {s: threading.Lock() for s in SENSORS}
         self._save_lock = threading.Lock()  # autosave runs on the worker, save on a service
@@ -264,12 +271,15 @@ class MargCalNode(Node):
 
     def _on_mag(self, msg: MagneticField) -> None:
         t, v = mag_to_numpy(msg)
-        cal = self._ingest("mag", t, v, None, msg.header.frame_id)
+        rate = self._rate  # written by the Imu callback (another thread): one reference, read once
+        gyro = rate[2] if (rate is not None and abs(t - rate[0]) <= GYRO_PAIR_S and rate[1] == msg.header.frame_id) else None
+        cal = self._ingest("mag", t, v, gyro, msg.header.frame_id)
         if cal is not None or self._publish_raw:
             self._pub_mag.publish(calibrate_mag(msg, cal))
 
     def _on_imu(self, msg: Imu) -> None:
         t, acc, gyro = imu_to_numpy(msg)
+        self._rate = (t, msg.header.frame_id, gyro)
         cal = self._ingest("accel", t, acc, gyro, msg.header.frame_id)
         if cal is not None or self._publish_raw:
             self._pub_imu.publish(calibrate_imu(msg, cal))

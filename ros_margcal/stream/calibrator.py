@@ -128,7 +128,7 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         self._recent_t: deque[float] = deque(maxlen=cfg.recent_samples)
         self._recent_v: deque[tuple[float, float, float]] = deque(maxlen=cfg.recent_samples)
         self._recent_r: deque[float] = deque(maxlen=cfg.recent_samples)
-        self._intake = Intake(cfg, use_gyro=self._gate is not None)
+        self._intake = Intake(cfg, use_gyro=self._gate is not None or cfg.gyro_aided)
         self.dropped = self._intake.dropped  # the intake's reasons and "outlier", one dict
         self.passed = 0
         self.kept = 0
@@ -158,7 +158,7 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         config = replace(config.checked(), sensor=self.sensor)
         rebuild = any(getattr(config, k) != getattr(self.config, k) for k in
                       ("n_bins", "per_bin", "recent_samples", "gate_window_s", "gate_cv_threshold", "gate_gyro_threshold",
-                       "gate_gyro_window_s", "gate_gyro_rest_threshold"))
+                       "gate_gyro_window_s", "gate_gyro_rest_threshold", "gyro_aided", "gyro_samples"))
         self.config = config
         self._intake.config = config
         if rebuild:
@@ -232,6 +232,8 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         t, (x, y, z), g = got
         events = [] if intake.new_base_step is None else self._new_time_base(t, intake.new_base_step)
         self._t = t
+        if self._gate is None and intake.use_gyro:
+            self._gyro_push(t, x, y, z, g)
         if self._gate is not None:
             out = self._gate.push(t, (x, y, z), g)
             if out is None:
@@ -258,6 +260,7 @@ class SensorCalibrator(ChangeDetection, Evaluation):
             self._cal = self._cal.replace(stamp=self._cal.stamp + shift)
         if self._gate is not None:
             self._gate.reset()
+        self._gyro_buf.clear()  # its blocks need consecutive stamps
         n = self._intake.time_base_resets
         self._time_base_note = f"stamps restarted {n}x, last at t={t:.2f} s (a {step:+.6g} s jump)"
         msg = (f"new time base: stamps jumped {step:+.6g} s to t={t:.3f} s and went on "

@@ -41,11 +41,15 @@ from ..model.errors import ConfigError
 from ..model.fitting import LOSSES, METHODS, SUPPORTED
 from .units import ACCEL_UNITS, GRAVITY, LEARN_SAMPLES, MAG_UNITS, unit_scale
 
-__all__ = ["ACCEL_UNITS", "FIELD_SPECS", "GRAVITY", "MAG_UNITS", "STATIC_SPREAD", "FieldSpec", "PipelineConfig", "guard_rails",
+__all__ = ["ACCEL_UNITS", "FIELD_SPECS", "GRAVITY", "GYRO_PAIR_S", "MAG_UNITS", "STATIC_SPREAD", "FieldSpec",
+           "PipelineConfig", "guard_rails",
            "plausibility", "relative_spread", "rms_relative"]
 
 EARTH_FIELD_RANGE_T = (20e-6, 70e-6)
 """Plausible geomagnetic field strength, tesla."""
+GYRO_PAIR_S = 0.02
+"""A magnetometer message takes the angular rate of the latest Imu message (node, bag replay) when their
+stamps are at most this far apart, s, and their frame_ids are the same (``gyro_aided``)."""
 STATIC_SPREAD = 0.03
 """RMS distance of readings from their mean, over their mean norm, below which the sensor has not turned
 (an HMC5883L at rest: 0.2 %; a full turn with an offset of 10 field norms: about 10 %)."""
@@ -122,6 +126,9 @@ class PipelineConfig:
     partial_period_s: float = 0.2  # one sample (their mean) of the partial fit's time series per this many seconds ...
     partial_samples: int = 1500  # ... the last this many (300 s at the defaults)
     partial_max_tilt_deg: float = 45.0  # a partial fit only for a ring or band: data tilted at most this much
+    gyro_aided: bool = True  # magnetometer: a rate pushed with a sample joins the partial fit (model/fitting_gyro.py) ...
+    gyro_samples: int = 15000  # ... the last this many samples with their rates (300 s at 50 Hz) ...
+    gyro_block_s: float = 1.0  # ... in blocks of this length (the longer, the larger the turn against the noise)
     partial_min_azimuth: float = 0.9  # ... turned about body z: share of 36 azimuth sectors the field visits
     early_fit: bool = True  # rich motion, uncalibrated: publish a MAP fit once its predicted heading p95 is small ...
     early_heading_p95_deg: float = 1.0  # ... at most this at +-30 deg tilt
@@ -319,6 +326,9 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "prior_inflate": _real(1.0, 1e6),
     "partial_max_tilt_deg": _real(0.0, 90.0),
     "partial_min_azimuth": _ratio(1.0),
+    "gyro_aided": FieldSpec(bool),
+    "gyro_samples": FieldSpec(int, 100, 1_000_000),
+    "gyro_block_s": _real(0.0, 60.0, open_lo=True),
     "early_fit": FieldSpec(bool),
     "early_heading_p95_deg": _real(0.0, 180.0, open_lo=True),
     "early_interval_s": _real(0.0, 3600.0),

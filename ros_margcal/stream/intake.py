@@ -22,9 +22,9 @@ objects (the node and the replay hand over what a message or a file held):
   and is taken. A lone glitch (one sample an hour or 1e9 s ahead, or a late one) is dropped once and
   the samples after it go on as before. A restart thus costs ``new_time_base_after - 1`` samples.
 - ``burst``: closer than ``1 / max_rate_hz`` to the last taken sample.
-- The gyro (accelerometer only, for the gate) is optional: one that is malformed, not finite or
-  beyond ``MAX_GYRO_RAD_S`` is treated as absent for that sample (counted in ``gyro_ignored``), so a
-  broken gyro costs the gate's motion check, never the accelerometer samples.
+- The gyro (the accelerometer's gate; the magnetometer's gyro-aided fit, ``gyro_aided``) is optional: one
+  that is malformed, not finite or beyond ``MAX_GYRO_RAD_S`` is treated as absent for that sample (counted
+  in ``gyro_ignored``), so a broken gyro costs the gate's motion check or the fit's rate, never the samples.
 
 Every sample is counted once: ``seen == taken + sum(dropped.values())`` here; the calibrator adds
 ``outlier`` (a taken sample it refuses later) to the same ``dropped``.
@@ -106,7 +106,7 @@ class Intake:
     Args:
         config: the calibrator's options (magnitudes, ``max_rate_hz``, ``max_stamp_gap_s``,
             ``new_time_base_after``).
-        use_gyro: read the gyro argument (the accelerometer's gate uses it; the magnetometer ignores it).
+        use_gyro: read the gyro argument (the accelerometer's gate; the magnetometer's gyro-aided fit).
     """
 
     def __init__(self, config: PipelineConfig, *, use_gyro: bool = False) -> None:

@@ -68,6 +68,7 @@ from numpy.typing import NDArray
 from ..model.calibration import Calibration
 from ..model.errors import MargCalError
 from ..model.fitting_core import parameter_names
+from ..model.fitting_gyro import GyroBlocks
 from ..model.fitting_prior import broad_prior, fit_with_prior, posterior_at
 from ..model.heading import heading_p95, inclination_deg
 from .config import PipelineConfig, guard_rails
@@ -112,6 +113,8 @@ class PartialResult:
         azimuth: share of the azimuth sectors the calibrated field visited (nan when not computed).
         sigma: the noise of the fit's residuals (nan when it failed): the next fit on the same kind of data
             may take it as given (``partial_fit(sigma=...)``).
+        gyro_explained: with gyro blocks, the share of the field's turning the gyro accounted for (nan: none).
+        gyro_used: the gyro was part of the fit (it accounted for at least ``fitting_gyro.MIN_EXPLAINED``).
     """
 
     calibration: Calibration | None
@@ -125,6 +128,8 @@ class PartialResult:
     over_limit: float | None = None
     azimuth: float = math.nan
     sigma: float = math.nan
+    gyro_explained: float = math.nan
+    gyro_used: bool = False
 
 
 def sphere_radius(points: Array) -> float:
@@ -192,7 +197,8 @@ def partial_fit(series: Array, prior: Calibration | None, cfg: PipelineConfig, *
                 spread: Array | None = None,
                 current: Calibration | None, stamp: float, sensor: str,
                 current_heading: float | None = None, sigma: float | None = None, max_iter: int = 200,
-                start: Calibration | None = None, sigma_tolerance: float = SIGMA_REUSE_TOLERANCE) -> PartialResult:
+                start: Calibration | None = None, sigma_tolerance: float = SIGMA_REUSE_TOLERANCE,
+                gyro: GyroBlocks | None = None) -> PartialResult:
     """The MAP fit of ``series`` (time-ordered raw samples) from ``prior`` and its verdict (module docstring).
 
     ``sigma``: the residual noise of the previous fit on the same kind of data, taken as given (one solve
@@ -200,7 +206,8 @@ def partial_fit(series: Array, prior: Calibration | None, cfg: PipelineConfig, *
     ``sigma_tolerance``, when the fit is repeated with the noise estimated. ``max_iter``: evaluations
     per solve (an early fit's start that needs more is in a flat, wrong valley: another start wins).
     ``start``: the previous fit on the same series, the one start of the MAP fit (``fit_with_prior``).
-    ``spread``: when ``series`` holds block means, each block's spread (``fit_with_prior(spread=...)``)."""
+    ``spread``: when ``series`` holds block means, each block's spread (``fit_with_prior(spread=...)``).
+    ``gyro``: blocks of the raw samples with their rates (``fit_with_prior(gyro=...)``)."""
     kind = "previous" if prior is not None else "broad"
     try:
         if prior is not None and (prior.covariance is None or tuple(prior.parameter_names) != SYM_NAMES):
@@ -218,7 +225,7 @@ def partial_fit(series: Array, prior: Calibration | None, cfg: PipelineConfig, *
         norm_std = NORM_REL_STD if (sensor == "mag" and not cfg.reference_norm and kind == "broad") else 0.0
         for noise in (sigma, None) if sigma is not None else (None,):
             pf = fit_with_prior(series, prior, inflate=inflate, stamp=stamp, time_ordered=True, norm_rel_std=norm_std,
-                                sigma=noise, max_iter=max_iter, start=start, spread=spread)
+                                sigma=noise, max_iter=max_iter, start=start, spread=spread, gyro=gyro)
             if noise is None or abs(pf.residual_sigma / noise - 1.0) <= sigma_tolerance:
                 break  # the given noise fits the residuals (else: again with the noise estimated)
         cal = pf.calibration
@@ -233,13 +240,15 @@ def partial_fit(series: Array, prior: Calibration | None, cfg: PipelineConfig, *
         if rich and not (cfg.early_fit and current is None):
             return PartialResult(cal, pf.updated, pf.from_prior, kind, tilt, math.inf, None,
                                  f"partial fit: the data are tilted up to {tilt:.0f} deg > {cfg.partial_max_tilt_deg:g} "
-                                 "deg, not a ring or band: the full path decides", sigma=pf.residual_sigma)
+                                 "deg, not a ring or band: the full path decides", sigma=pf.residual_sigma,
+                                 gyro_explained=pf.gyro_explained, gyro_used=pf.gyro_used)
         azimuth = azimuth_coverage(cal, series)
         if not rich and not azimuth >= cfg.partial_min_azimuth:
             return PartialResult(cal, pf.updated, pf.from_prior, kind, tilt, math.inf, None,
                                  f"partial fit: the field turned through {100 * azimuth:.0f} % of the azimuths about the "
                                  f"body z axis < {100 * cfg.partial_min_azimuth:.0f} %: not a ground robot's turns",
-                                 azimuth=azimuth, sigma=pf.residual_sigma)
+                                 azimuth=azimuth, sigma=pf.residual_sigma, gyro_explained=pf.gyro_explained,
+                                 gyro_used=pf.gyro_used)
         inc = _inclination(cfg, cal, None if rich else series)  # "z up on average" holds for a ring, not a tumble
         figs = _figures(cal, inc)
         seen = figs.tilt30_deg if rich else heading_p95(cal, tilt_deg=tilt, inclination=inc)
@@ -261,4 +270,5 @@ def partial_fit(series: Array, prior: Calibration | None, cfg: PipelineConfig, *
                             None if current_heading is not None else current)
         if rails:
             reason = f"partial fit: {rails}"
-    return PartialResult(cal, pf.updated, pf.from_prior, kind, tilt, seen, figs, reason, over, azimuth, pf.residual_sigma)
+    return PartialResult(cal, pf.updated, pf.from_prior, kind, tilt, seen, figs, reason, over, azimuth, pf.residual_sigma,
+                         pf.gyro_explained, pf.gyro_used)

@@ -6,6 +6,10 @@ estimate and the decision live in ``observable`` (see its docstring). Here:
 - the decimated time series of the samples that reach the buffer stage (the accelerometer's: the
   gate's still means): the mean of each ``partial_period_s`` and its spread, the last ``partial_samples`` of them,
   fed from the sample path;
+- for the magnetometer, the last ``gyro_samples`` samples with the rate pushed with them (a sample without
+  one is kept as a gap), cut into blocks of ``gyro_block_s`` for the gyro-aided fit
+  (``model.fitting_gyro``) of a series fit; the status says what share of the field's turning the gyro
+  accounted for, and that it was not used when too little (the gyro and magnetometer not in one frame);
 - the prior: the last *full* calibration accepted or loaded (with a covariance over the symmetric
   parameters; a full fit gets one from ``observable.heading_figures``), else the broad prior;
 - the early fit on rich motion (``observable``): before the first calibration, on the recent samples
@@ -41,6 +45,7 @@ from numpy.typing import NDArray
 
 from ..model.calibration import Calibration
 from ..model.fitting_geometric import block_means
+from ..model.fitting_gyro import MIN_EXPLAINED, gyro_blocks
 from .config import PipelineConfig
 from .observable import (
     AZIMUTH_SECTORS,
@@ -72,6 +77,8 @@ class PartialCalibration:
     REFIT_GROWTH = 0.5
     """A published partial calibration is refitted once the series grew by this share (its heading error
     falls by about a fifth meanwhile; refitting at every quarter cost twice the fits for little)."""
+    GYRO_MIN_BLOCKS = 20
+    """Fewest gyro blocks (complete, with a rate on every sample) for the gyro to join a series fit."""
     EARLY_MAX_ITER = 50
     """Evaluations per solve of an early fit (a start that needs more crawls along a wrong valley)."""
     PARTIAL_GROWTH = 0.25
@@ -112,6 +119,8 @@ class PartialCalibration:
         self._partial_start: Calibration | None = None  # ... and its solution, the next one's start
         self._az_watch: tuple[Any, ...] | None = None  # after an azimuth refusal: its W rows x, y and offset
         self._az_seen: set[int] = set()  # ... and the sectors the series visited under it
+        self._gyro_buf: deque[tuple[float, ...]] = deque(maxlen=cfg.gyro_samples)  # t, x, y, z, rate (nan: none)
+        self._gyro_share = math.nan  # the last series fit's share of the field's turning the gyro accounted for
 
     def _cadence(self) -> tuple[int, float]:
         """(samples, seconds) between evaluations, never fewer than ``refit_every // 2`` samples (the
@@ -134,6 +143,8 @@ class PartialCalibration:
         res: PartialResult | None = job.get("result")
         if res is not None and job.get("early") and math.isfinite(res.sigma) and res.sigma > 0:
             self._early_sigma = res.sigma
+        if res is not None and not job.get("early") and res.calibration is not None:
+            self._gyro_share = res.gyro_explained
         if res is None or job.get("early") or job.get("prior") is not self._prior:
             return
         sound = res.calibration is not None and (not res.reason or res.over_limit is not None
@@ -201,6 +212,23 @@ class PartialCalibration:
         if self._az_watch is not None:
             self._watch_point(px, py, pz)
 
+    def _gyro_push(self, t: float, x: float, y: float, z: float, g: tuple[float, float, float] | None) -> None:
+        """One more magnetometer sample for the gyro-aided fit: with its rate, or as a gap once a rate was seen."""
+        if g is not None:
+            self._gyro_buf.append((t, x, y, z, g[0], g[1], g[2]))
+        elif self._gyro_buf:
+            self._gyro_buf.append((t, x, y, z, math.nan, math.nan, math.nan))
+
+    def _gyro_blocks(self, rows: list[tuple[float, ...]]) -> Any:
+        """The gyro blocks of ``rows`` (``_gyro_buf``'s), ``gyro_block_s`` long; None when too few (off-lock)."""
+        if len(rows) < self.GYRO_MIN_BLOCKS * 2:
+            return None
+        arr = np.array(rows, dtype=np.float64)
+        step = float(np.median(np.diff(arr[:, 0])))
+        k = max(2, round(self.config.gyro_block_s / step)) if step > 0 else 2
+        blocks = gyro_blocks(arr[:, 0], arr[:, 1:4], arr[:, 4:7], k)
+        return blocks if len(blocks) >= self.GYRO_MIN_BLOCKS else None
+
     def _series_points(self) -> tuple[Array, Array]:
         """The series: block means (N, 3) and their spreads (N,)."""
         arr = np.array(self._series, dtype=np.float64).reshape(-1, 4)
@@ -226,13 +254,16 @@ class PartialCalibration:
         early = len(series) < self.config.min_points
         if early:  # the recent samples until the series is long enough, as block means of EARLY_POINTS at most
             series, spread = block_means(self._recent_v, -(-len(self._recent_v) // self.EARLY_POINTS))
+        rows = [] if early or not self._gyro_buf else list(self._gyro_buf)  # a copy of references: cheap
         return {**job, "partial": True, "series": series, "spread": spread, "prior": self._prior, "early": early,
+                "gyro_rows": rows,
                 "sigma": self._early_sigma if early else self._partial_sigma,
                 "start": None if (early or self._changed) else self._partial_start,  # a sensor change: every start
                 "current_heading": None if cur is None else cur.heading_seen_deg}
 
     def _partial_compute(self, job: dict[str, Any]) -> tuple[Calibration | None, str]:
-        res = partial_fit(job["series"], job["prior"], job["config"], spread=job["spread"], recent=job["recent"],
+        gyro = self._gyro_blocks(job["gyro_rows"]) if job.get("gyro_rows") else None
+        res = partial_fit(job["series"], job["prior"], job["config"], spread=job["spread"], recent=job["recent"], gyro=gyro,
                           current=job["current"],
                           stamp=job["t"], sensor=self.sensor, current_heading=job["current_heading"], sigma=job["sigma"],
                           max_iter=self.EARLY_MAX_ITER if job["early"] else job["config"].max_iter, start=job["start"],
@@ -282,6 +313,11 @@ class PartialCalibration:
         f = self._figures
         if f is not None and self._cal is not None:
             out += f"; heading p95 {f.level_deg:.2f} deg level, {f.tilt30_deg:.2f} deg at 30 deg tilt (predicted)"
+        g = self._gyro_share
+        if math.isfinite(g):
+            out += (f"; gyro-aided: the rate accounts for {100 * g:.1f} % of the field's turning" if g >= MIN_EXPLAINED
+                    else f"; gyro not used: the rate accounts for {100 * g:.0f} % of the field's turning < "
+                         f"{100 * MIN_EXPLAINED:.0f} % (are the IMU and magnetometer in one frame, in step?)")
         if self._partial_note:
             out += f"; {self._partial_note}"
         return out
@@ -296,4 +332,5 @@ class PartialCalibration:
             "heading_p95_level_deg": None if (f is None or cal is None) else f.level_deg,
             "heading_p95_tilt30_deg": None if (f is None or cal is None) else f.tilt30_deg,
             "tilt_seen_deg": None if (p is None or cal is None) else p.tilt_seen_deg,
+            "gyro_explained": self._gyro_share if math.isfinite(self._gyro_share) else None,
         }

@@ -1,8 +1,10 @@
 """Replay: a recording through the streaming calibrators in message order, as the node would run them.
 
 Every Imu / MagneticField message of a bag (or every row of a CSV) goes to the ``SensorCalibrator``
-of its sensor with the message stamp as time; ``replay`` returns the calibrators, the timeline of
-events and periodic statuses, and the message count. ``margcal replay`` prints it.
+of its sensor with the message stamp as time (a MagneticField message with the angular rate of the
+latest Imu message, as the node pairs them: ``config.GYRO_PAIR_S``; a CSV row with its ``gx,gy,gz``);
+``replay`` returns the calibrators, the timeline of events and periodic statuses, and the message
+count. ``margcal replay`` prints it.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ from ..model.errors import RecordingError
 from ..recordings.bag import iter_bag_messages
 from ..recordings.read import read_recording
 from .calibrator import SensorCalibrator
-from .config import PipelineConfig
+from .config import GYRO_PAIR_S, PipelineConfig
 from .status import Event, EventKind
 
 __all__ = ["replay"]
@@ -37,8 +39,20 @@ def _samples(path: Path, sensor: str | None, unit: str | None) -> tuple[Iterator
         gyro = rec.gyro if rec.gyro is not None else [None] * len(rec)
         it = ((float(t), s, v, g) for t, v, g in zip(rec.t, rec.raw, gyro, strict=True))
         return it, {s: unit or rec.unit or _UNIT_OF_SENSOR[s]}
-    it = ((m.t, _SENSOR_OF_KIND[m.kind], m.xyz, m.gyro) for m in iter_bag_messages(path))
-    return it, dict(_UNIT_OF_SENSOR)
+    return _paired(iter_bag_messages(path)), dict(_UNIT_OF_SENSOR)
+
+
+def _paired(messages: Iterator[Any]) -> Iterator[tuple[float, str, Any, Any]]:
+    """Bag messages as (t, sensor, xyz, gyro), a MagneticField one with the latest Imu rate (``GYRO_PAIR_S``)."""
+    rate: tuple[float, str, Any] | None = None
+    for m in messages:
+        frame = str(getattr(getattr(m.msg, "header", None), "frame_id", ""))
+        if m.kind == "imu":
+            rate = None if m.gyro is None else (m.t, frame, m.gyro)
+            yield m.t, "accel", m.xyz, m.gyro
+        else:
+            ok = rate is not None and abs(m.t - rate[0]) <= GYRO_PAIR_S and rate[1] == frame
+            yield m.t, "mag", m.xyz, rate[2] if ok and rate is not None else None
 
 
 def replay(path: Path, *, sensor: str | None = None, unit: str | None = None, status_every: float = 10.0,

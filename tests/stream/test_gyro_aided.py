@@ -1,0 +1,119 @@
+"""The magnetometer calibrator with a gyro rate pushed with each sample (``gyro_aided``), on a ground robot of
+the independent generator (tests/independent: no code shared with the package). Figures over many seeds:
+``scripts/bench_ground_robot.py --gyro``."""
+
+from __future__ import annotations
+
+import math
+from types import ModuleType
+from typing import Any
+
+import numpy as np
+import pytest
+from conftest import INDEPENDENT
+
+from ros_margcal.stream.calibrator import EventKind, PipelineConfig, SensorCalibrator
+
+GEN: ModuleType = INDEPENDENT
+
+
+def _feed(cal: SensorCalibrator, rec: dict[str, Any], gyro: np.ndarray | None) -> list[Any]:
+    out = []
+    rates = [None] * len(rec["t"]) if gyro is None else gyro.tolist()
+    for t, v, g in zip(rec["t"].tolist(), rec["xyz"].tolist(), rates, strict=True):
+        out += [e for e in cal.push(t, v, g) if e.kind is EventKind.CALIBRATED]
+    return out
+
+
+@pytest.fixture(scope="module")
+def ring() -> dict[str, Any]:
+    return GEN.generate("mag", "ground", duration_s=150.0, rate_hz=50.0, seed=22, tilt_deg=5.0,
+                        symmetric_soft_iron=True, hard_iron_mag=30e-6)
+
+
+@pytest.fixture(scope="module")
+def alone(ring: dict[str, Any]) -> tuple[SensorCalibrator, list[Any]]:
+    cal = SensorCalibrator("mag")
+    return cal, _feed(cal, ring, None)
+
+
+def _p95(rec: dict[str, Any], c: Any, tilt: float) -> float:
+    return float(GEN.heading_p95(c.matrix, c.offset, rec["truth"], tilt_deg=tilt))
+
+
+def test_with_a_gyro_a_ring_determines_every_parameter(ring: dict[str, Any], alone: tuple[SensorCalibrator, list[Any]]) -> None:
+    cal = SensorCalibrator("mag")
+    events = _feed(cal, ring, ring["gyro"])
+    st = cal.status()
+    assert events and st.gyro_explained is not None and st.gyro_explained > 0.99, st.message
+    assert "w_zz" in st.updated_parameters and st.prior_parameters == (), st.message
+    assert "gyro-aided" in st.message
+    ref = alone[0].status()
+    assert "w_zz" in ref.prior_parameters and ref.gyro_explained is None and "gyro" not in ref.message
+    c, c0 = cal.calibration, alone[0].calibration
+    assert _p95(ring, c, 30.0) < 0.3 * _p95(ring, c0, 30.0)
+    assert _p95(ring, c, 0.0) < 0.5
+    # the predicted figures follow: the 30 deg one is the data's now, not the broad prior's
+    assert st.heading_p95_tilt30_deg is not None and ref.heading_p95_tilt30_deg is not None
+    assert st.heading_p95_tilt30_deg < 0.3 * ref.heading_p95_tilt30_deg
+    assert 0.5 < st.heading_p95_tilt30_deg / _p95(ring, c, 30.0) < 4.0
+
+
+def test_a_gyro_in_another_frame_changes_nothing_and_says_so(ring: dict[str, Any],
+                                                             alone: tuple[SensorCalibrator, list[Any]]) -> None:
+    cal = SensorCalibrator("mag")
+    events = _feed(cal, ring, ring["gyro"][:, [1, 0, 2]] * [1.0, -1.0, 1.0])
+    st = cal.status()
+    assert st.gyro_explained is not None and st.gyro_explained < 0.9
+    assert "gyro not used" in st.message and "one frame" in st.message
+    assert [e.t for e in events] == [e.t for e in alone[1]]
+    np.testing.assert_array_equal(cal.calibration.offset, alone[0].calibration.offset)
+
+
+def test_bad_rates_are_ignored_and_counted_never_the_samples(ring: dict[str, Any],
+                                                             alone: tuple[SensorCalibrator, list[Any]]) -> None:
+    rates = ring["gyro"].copy()
+    rates[::197] = np.nan  # sparse: a block holding one is dropped (1 s blocks: about half of them here)
+    rates[3::211] = 1e9
+    cal = SensorCalibrator("mag")
+    events = _feed(cal, ring, rates)
+    st = cal.status()
+    bad = int(np.sum(~np.isfinite(rates).all(axis=1) | (np.linalg.norm(np.nan_to_num(rates, nan=0.0), axis=1) > 100)))
+    assert st.gyro_ignored == bad and st.samples_passed == alone[0].status().samples_passed
+    assert events and st.gyro_explained is not None and st.gyro_explained > 0.99  # the blocks without a gap remain
+
+
+def test_gyro_aided_off_is_the_magnetometer_alone(ring: dict[str, Any], alone: tuple[SensorCalibrator, list[Any]]) -> None:
+    cal = SensorCalibrator("mag", PipelineConfig.for_sensor("mag", gyro_aided=False))
+    events = _feed(cal, ring, ring["gyro"])
+    assert cal.status().gyro_explained is None and cal.status().gyro_ignored == 0
+    assert [e.t for e in events] == [e.t for e in alone[1]]
+
+
+def test_a_restarted_time_base_empties_the_rates() -> None:
+    cal = SensorCalibrator("mag")
+    for k in range(200):
+        cal.push(100.0 + 0.02 * k, [20e-6, 0.0, 40e-6], [0.0, 0.0, 0.1])
+    assert len(cal._gyro_buf) == 200
+    for k in range(20):  # stamps restart near zero and go on
+        cal.push(0.02 * k, [20e-6, 0.0, 40e-6], [0.0, 0.0, 0.1])
+    assert cal.status().time_base_resets == 1
+    assert 0 < len(cal._gyro_buf) <= 20
+    assert math.isfinite(cal._gyro_buf[-1][0])
+
+
+def test_a_bag_replay_pairs_each_magnetometer_message_with_the_imu_rate(ring: dict[str, Any], tmp_path: Any) -> None:
+    """As the node does: a MagneticField message takes the latest Imu rate of the same frame within 20 ms."""
+    from ros_margcal.recordings.bag import write_bag
+    from ros_margcal.recordings.recording import Recording
+    from ros_margcal.stream.replay import replay
+
+    t = ring["t"][:4000]
+    mag = Recording(t=t, raw=ring["xyz"][:4000], sensor="mag", unit="T")
+    acc = np.tile([0.0, 0.0, 9.81], (len(t), 1)) + np.random.default_rng(4).normal(0.0, 0.02, (len(t), 3))
+    imu = Recording(t=t + 0.005, raw=acc, gyro=ring["gyro"][:4000], sensor="accel", unit="m/s^2")
+    bag = write_bag(tmp_path / "ring.mcap", {"imu/mag": mag, "imu/data_raw": imu})
+    out = replay(bag, progress=False, status_every=0.0)
+    st = out["calibrators"]["mag"].status()
+    assert st.samples_passed == 4000 and st.gyro_ignored == 0
+    assert st.gyro_explained is not None and st.gyro_explained > 0.99, st.message
