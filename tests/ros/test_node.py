@@ -322,3 +322,39 @@ def test_multithreaded_executor_calibrates(context: Context, classes: MessageCla
         assert not h.node.calibrators["mag"].pending or h.spin_until(lambda: not h.node.calibrators["mag"].pending, 2.0)
     finally:
         h.close()
+
+
+def test_each_mag_message_takes_the_latest_imu_rate_of_its_frame(context: Context, classes: MessageClasses,
+                                                                 tmp_path: Path) -> None:
+    """gyro_aided: a MagneticField message gets the angular rate of the latest Imu message when the stamps are
+    within 20 ms and the frame_ids match (the rate must be in the magnetometer's frame); else none."""
+    from msgdata import imu_msg
+
+    node = MargCalNode(context=context, parameter_overrides=[Parameter("calibration_file", value=str(tmp_path / "c.yaml"))])
+    peer = Node("margcal_test_rates", context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    executor.add_node(peer)
+    try:
+        pub_imu = peer.create_publisher(classes.Imu, "imu/data_raw", RELIABLE)
+        pub_mag = peer.create_publisher(classes.MagneticField, "imu/mag", RELIABLE)
+        end = time.monotonic() + 5.0
+        while time.monotonic() < end and (pub_imu.get_subscription_count() == 0 or pub_mag.get_subscription_count() == 0):
+            executor.spin_once(timeout_sec=0.01)
+        for k, frame in enumerate(["imu_link"] * 30 + ["mag_link"] * 10):
+            t = 100.0 + 0.02 * k
+            pub_imu.publish(imu_msg(classes, t, [0.0, 0.0, 9.81], [0.0, 0.0, 0.3]))
+            executor.spin_once(timeout_sec=0.05)
+            pub_mag.publish(mag_msg(classes, t + 0.005, [20e-6, 1e-6 * k, 40e-6], frame_id=frame))
+            executor.spin_once(timeout_sec=0.05)
+        end = time.monotonic() + 2.0
+        while time.monotonic() < end and node._cals["mag"].seen < 40:
+            executor.spin_once(timeout_sec=0.01)
+        rows = list(node._cals["mag"]._gyro_buf)
+        assert len(rows) == 40, "every magnetometer sample after the first rate is kept (a gap without one)"
+        rates = np.array([r[4:] for r in rows])
+        assert np.allclose(rates[:30], [0.0, 0.0, 0.3]) and np.isnan(rates[30:]).all()
+    finally:
+        executor.shutdown()
+        peer.destroy_node()
+        node.destroy_node()
