@@ -12,7 +12,8 @@ yaw, level and with roll/pitch in {-30, 0, 30} deg, tilt compensation with the t
   when they were added; run three times in that session, each after changes decided on the other seeds)
   and seeds 600-609 with 25 uT (added later, run once at the end of the session that added them), and
   seeds 700-709 with 28 uT (added with ``--gyro``, the gyro-aided fit, run once with and once without
-  the gyro at the end of that session).
+  the gyro; the gyro's scale errors then joined the fit and it ran again) and seeds 800-809 with 22 uT
+  (added then, run once with the gyro).
   Per case: time of the first calibration, its measured level p95, the worst
   published level p95, and at the end the measured / predicted level and 30 deg p95 and their ratio.
 - ``tumble``: time to the first calibration and to the first with a measured 30 deg p95 <= 1 deg (median).
@@ -41,7 +42,7 @@ from ros_margcal.stream.calibrator import EventKind, PipelineConfig, SensorCalib
 TUNING = (1, 2, 3, 11, 12, 13)
 HELD_OUT = tuple(range(100, 110))
 FRESH = {"fresh": (tuple(range(300, 310)), 20e-6), "fresh-2": (tuple(range(600, 610)), 25e-6),
-         "fresh-3": (tuple(range(700, 710)), 28e-6)}
+         "fresh-3": (tuple(range(700, 710)), 28e-6), "fresh-4": (tuple(range(800, 810)), 22e-6)}
 """Fresh groups: seeds and hard iron."""
 MAG_GYRO = False
 """``--gyro``: the magnetometer calibrator gets the generator's gyro rates too (the gyro-aided partial fit)."""

@@ -5,7 +5,9 @@ through: a ground robot turning in yaw leaves the vertical gain, offset and (hal
 terms to the prior (``fitting_prior``). A gyro does. A field constant in the world frame, seen by a
 sensor turning at the body rate ``omega``, obeys ``dc/dt = -omega x c``; in raw units, over a block of
 consecutive samples ``v_0 .. v_m`` (trapezoid rule on each step ``j``: ``vbar_j``, ``omegabar_j`` the means
-of samples ``j`` and ``j + 1``, ``theta_j = omegabar_j dt_j``, ``beta`` the gyro bias)
+of samples ``j`` and ``j + 1``, ``theta_j = omegabar_j dt_j``; the true rate is ``(1 + kappa) omega - beta``
+with the gyro's bias ``beta`` and scale errors ``kappa`` per axis, written below for ``kappa = 0``: with it,
+``theta_j`` becomes ``(1 + kappa) theta_j``, ``S`` and ``Theta`` likewise)
 
     v_m - v_0 = -W^-1 sum_j (theta_j - beta dt_j) x W (vbar_j - b).
 
@@ -45,12 +47,20 @@ from numpy.typing import ArrayLike, NDArray
 
 from .errors import InputError
 
-__all__ = ["GYRO_BIAS_STD", "MIN_EXPLAINED", "GyroBlocks", "explained", "gyro_blocks", "gyro_residuals"]
+__all__ = ["GYRO_BIAS_STD", "GYRO_SCALE_STD", "MIN_EXPLAINED", "GyroBlocks", "explained", "gyro_blocks", "gyro_residuals"]
 
 Array = NDArray[np.float64]
 
 GYRO_BIAS_STD = 0.05
 """Prior standard deviation of each gyro bias component, rad/s (about 3 deg/s: a MEMS gyro's turn-on bias)."""
+GYRO_SCALE_STD = 0.02
+"""Default prior standard deviation of each gyro scale error (MEMS gyro sensitivity tolerances: about
+0.5-3 %). On a ring the yaw axis's is fixed by the turns; the horizontal axes' trade off against the
+vertical gain (the wobble's rate scale against the field's vertical response), so this prior bounds what the
+gyro can say at tilts not seen: on a 5 deg ring (two seeds, a throwaway run) a 3 % scale error on every axis,
+unmodelled, left the level heading p95 at 0.07-0.11 deg but put it 2.3-2.8 deg off at 30 deg against a
+predicted 0.6; with this prior the prediction there is 2.2-2.4 deg whatever the error (measured 0.4-0.5 deg
+for a perfect gyro, 1.8-2.9 for 3 %)."""
 MIN_EXPLAINED = 0.9
 """Least share of the field's change within blocks that the gyro must account for at a fit's solution; less
 means the rate and the reading are not in one frame (or not in step), and the gyro is not used."""
@@ -62,12 +72,12 @@ _E = [np.array(m, dtype=np.float64) for m in (  # d W / d (w_xx, w_yy, w_zz, w_x
 
 @dataclass(frozen=True)
 class GyroBlocks:
-    """Per block of consecutive samples: ``d`` = v_m - v_0 (N, 3), ``s`` = sum theta vbar^T (N, 3, 3),
-    ``theta`` = sum theta (N, 3), ``p`` = sum dt vbar (N, 3), ``t`` = sum dt (N,) (module docstring); ``ax``
-    = axial(E_m S^T) for W's six basis matrices (6, N, 3), computed once (``_axial_basis``)."""
+    """Per block of consecutive samples: ``d`` = v_m - v_0 (N, 3), ``theta`` = sum theta (N, 3), ``p`` = sum
+    dt vbar (N, 3), ``t`` = sum dt (N,) (module docstring) and, in place of ``S = sum theta vbar^T``,
+    ``ax[m, k]`` = axial(E_m S^T E_kk) for W's six basis matrices and the three gyro axes (6, 3, N, 3),
+    computed once (``_axial_basis``)."""
 
     d: Array
-    s: Array
     theta: Array
     p: Array
     t: Array
@@ -92,8 +102,7 @@ def gyro_blocks(t: ArrayLike, xyz: ArrayLike, gyro: ArrayLike, k: int) -> GyroBl
         msg = f"gyro blocks need stamps, readings and rates of one length and k >= 2, got {len(tt)}, {len(v)}, {len(w)}, k={k}"
         raise InputError(msg)
     nb = len(tt) // k
-    empty = GyroBlocks(np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0),
-                       np.zeros((6, 0, 3)))
+    empty = GyroBlocks(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros((6, 3, 0, 3)))
     if nb == 0:
         return empty
     n = nb * k
@@ -108,7 +117,7 @@ def gyro_blocks(t: ArrayLike, xyz: ArrayLike, gyro: ArrayLike, k: int) -> GyroBl
     vbar = 0.5 * (vb[:, 1:] + vb[:, :-1])
     th = 0.5 * (wb[:, 1:] + wb[:, :-1]) * dt[..., None]
     s = np.einsum("nji,njk->nik", th, vbar)
-    return GyroBlocks(d=vb[:, -1] - vb[:, 0], s=s, theta=th.sum(axis=1), p=np.einsum("nj,nji->ni", dt, vbar),
+    return GyroBlocks(d=vb[:, -1] - vb[:, 0], theta=th.sum(axis=1), p=np.einsum("nj,nji->ni", dt, vbar),
                       t=dt.sum(axis=1), ax=_axial_basis(s))
 
 
@@ -124,33 +133,47 @@ def _skew(c: Array) -> Array:
 
 
 def _axial_basis(s: Array) -> Array:
-    """``axial(E_m S^T)`` of each block for the six symmetric basis matrices ``E_m`` (6, N, 3): ``axial(W S^T)``
-    is linear in W's entries, so a residual evaluation needs one contraction instead of a (N, 3, 3) product."""
-    return np.stack([_axial(np.einsum("cd,nbd->ncb", e, s)) for e in _E])
+    """``axial(E_m S^T E_kk)`` of each block (6, 3, N, 3): ``axial(W S^T diag(1 + kappa))`` is linear in W's
+    entries and in the gyro scale errors, so a residual evaluation needs contractions, no (N, 3, 3) product."""
+    out = np.empty((6, 3, len(s), 3))
+    for k in range(3):
+        sk = np.zeros_like(s)
+        sk[:, k, :] = s[:, k, :]  # S^T E_kk keeps column k of S^T: row k of S (the gyro's axis k)
+        for m, e in enumerate(_E):
+            out[m, k] = _axial(np.einsum("cd,nbd->ncb", e, sk))
+    return out
 
 
-def gyro_residuals(blocks: GyroBlocks, b: Array, mat: Array, beta: Array) -> tuple[Array, Array]:
-    """Residuals (3N,: x, y, z of each block in turn, raw units) and their transposed Jacobian (12, 3N) over
-    ``(b_x, b_y, b_z, w_xx, w_yy, w_zz, w_xy, w_xz, w_yz, beta_x, beta_y, beta_z)`` (module docstring).
+def gyro_residuals(blocks: GyroBlocks, b: Array, mat: Array, beta: Array, kappa: Array) -> tuple[Array, Array]:
+    """Residuals (3N,: x, y, z of each block in turn, raw units) and their transposed Jacobian (15, 3N) over
+    ``(b_x, b_y, b_z, w_xx, w_yy, w_zz, w_xy, w_xz, w_yz, beta_x, beta_y, beta_z, kappa_x, kappa_y, kappa_z)``
+    (module docstring; the rate is ``(1 + kappa) omega - beta``, ``kappa`` the gyro's scale errors per axis).
     Cross products are row products with ``_skew`` matrices: (N, 3) @ (3, 3), no per-block loop."""
     winv_t = np.linalg.inv(mat).T
-    a = blocks.theta - blocks.t[:, None] * beta  # Theta - T beta
+    sc = 1.0 + kappa
+    a = blocks.theta * sc - blocks.t[:, None] * beta  # Theta' - T beta
     w6 = np.array([mat[0, 0], mat[1, 1], mat[2, 2], mat[0, 1], mat[0, 2], mat[1, 2]])
+    ax_w = np.tensordot(sc, blocks.ax, axes=([0], [1]))  # (6, N, 3): axial(E_m S'^T)
     beta_k = _skew(beta)
-    u = np.tensordot(w6, blocks.ax, 1) - a @ _skew(mat @ b) + blocks.p @ (mat.T @ beta_k)  # beta x y = -y @ skew(beta)
+    wb = mat @ b
+    u = np.tensordot(w6, ax_w, 1) - a @ _skew(wb) + blocks.p @ (mat.T @ beta_k)  # beta x y = -y @ skew(beta)
     g = u @ winv_t  # W^-1 u
     r = blocks.d + g
     nb = len(blocks)
-    jt = np.empty((12, nb, 3))
-    for i in range(3):  # d u / d b_i = -(Theta - T beta) x W e_i
+    jt = np.empty((15, nb, 3))
+    for i in range(3):  # d u / d b_i = -(Theta' - T beta) x W e_i
         jt[i] = a @ (-_skew(mat[:, i]) @ winv_t)
-    for m, e in enumerate(_E):  # d u / d W[e] = axial(e S^T) - a x e b - beta x e P; dr = W^-1 (du - e g)
-        du = blocks.ax[m] - a @ _skew(e @ b) + blocks.p @ (e.T @ beta_k) - g @ e.T
+    for m, e in enumerate(_E):  # d u / d W[e] = axial(e S'^T) - a x e b - beta x e P; dr = W^-1 (du - e g)
+        du = ax_w[m] - a @ _skew(e @ b) + blocks.p @ (e.T @ beta_k) - g @ e.T
         jt[3 + m] = du @ winv_t
     q = (blocks.p - blocks.t[:, None] * b) @ mat.T  # d u / d beta_i = [W (P - T b)] x e_i
+    eye = np.eye(3)
     for i in range(3):
-        jt[9 + i] = q @ (_skew(np.eye(3)[i]) @ winv_t)
-    return r.reshape(-1), jt.reshape(12, -1)
+        jt[9 + i] = q @ (_skew(eye[i]) @ winv_t)
+    for k in range(3):  # d u / d kappa_k = axial(W S^T E_kk) - Theta_k e_k x W b
+        du = np.tensordot(w6, blocks.ax[:, k], 1) - blocks.theta[:, k:k + 1] * np.cross(eye[k], wb)
+        jt[12 + k] = du @ winv_t
+    return r.reshape(-1), jt.reshape(15, -1)
 
 
 def explained(blocks: GyroBlocks, r: Array) -> float:

@@ -61,8 +61,9 @@ spread (``spread``) a point is fitted to the norm its mean should have (``fittin
 
 **Gyro.** With the body rates of consecutive raw samples (``gyro``: ``fitting_gyro``'s blocks) the turn
 the gyro measured must turn the calibrated field: those residuals join the norm residuals at their own
-noise (MAD, re-estimated with ``sigma``), with the gyro bias as three more parameters (prior sd
-``GYRO_BIAS_STD``) marginalised out of the covariance. A ring then determines the vertical terms too. A
+noise (MAD, re-estimated with ``sigma``), with the gyro's bias and scale errors as six more parameters
+(prior sd ``GYRO_BIAS_STD``, ``gyro_scale_std``) marginalised out of the covariance. A ring then determines
+the vertical terms too, as far as the gyro's scale on its horizontal axes is known. A
 gyro that at the solution accounts for less than ``MIN_EXPLAINED`` of the field's turning (another frame)
 is dropped and the fit redone without it.
 
@@ -95,7 +96,7 @@ from .calibration import Calibration, FitStats
 from .errors import ConvergenceError, DegenerateDataError, InputError, as_points
 from .fitting_core import mad_sigma, pack, parameter_names, resjac, unpack
 from .fitting_geometric import geometric, norm_spreads
-from .fitting_gyro import GYRO_BIAS_STD, MIN_EXPLAINED, GyroBlocks, explained, gyro_residuals
+from .fitting_gyro import GYRO_BIAS_STD, GYRO_SCALE_STD, MIN_EXPLAINED, GyroBlocks, explained, gyro_residuals
 from .fitting_noise import Whitener, noise_model, whitener
 
 __all__ = ["BROAD_MATRIX_STD", "BROAD_OFFSET_STD", "UPDATED_VARIANCE_RATIO", "PriorFit", "broad_prior", "fit_with_prior",
@@ -134,7 +135,7 @@ class PriorFit:
             at the solution (``fitting_gyro.explained``; nan without); below ``MIN_EXPLAINED`` the gyro was
             not used (``gyro_used``) and the fit is the magnetometer's alone.
         gyro_used: the gyro blocks are part of the fit.
-        gyro_bias: their estimated bias, rad/s (zeros when not used).
+        gyro_bias: their estimated bias, rad/s, and gyro_scale: their scale errors (zeros when not used).
     """
 
     calibration: Calibration
@@ -148,6 +149,7 @@ class PriorFit:
     gyro_explained: float = math.nan
     gyro_used: bool = False
     gyro_bias: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    gyro_scale: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     @property
     def partial(self) -> bool:
@@ -194,7 +196,8 @@ def _prior_parts(prior: Calibration, inflate: float) -> tuple[Array, Array]:
 def fit_with_prior(points: ArrayLike, prior: Calibration, *, sigma: float | None = None, inflate: float = 1.0,
                    max_iter: int = 200, stamp: float = 0.0, time_ordered: bool = False,
                    norm_rel_std: float = 0.0, start: Calibration | None = None,
-                   spread: ArrayLike | None = None, gyro: GyroBlocks | None = None) -> PriorFit:
+                   spread: ArrayLike | None = None, gyro: GyroBlocks | None = None,
+                   gyro_scale_std: float = GYRO_SCALE_STD) -> PriorFit:
     """MAP fit of the symmetric model to ``points`` (N, 3) given a prior calibration (module docstring).
 
     Args:
@@ -217,9 +220,11 @@ def fit_with_prior(points: ArrayLike, prior: Calibration, *, sigma: float | None
             samples from their mean (raw units squared): each point is fitted to the norm it should have
             (module docstring, **Block means**). None: single samples.
         gyro: blocks of consecutive raw samples with the body rates (``fitting_gyro``): their residuals join
-            the fit, with the gyro bias as three more parameters (prior sd ``GYRO_BIAS_STD``), weighed by
-            their own noise (MAD); the covariance is marginal over the bias. When at the solution the gyro
-            accounts for less than ``MIN_EXPLAINED`` of the field's change, the fit is redone without it.
+            the fit, with the gyro's bias and scale errors as six more parameters (prior sd ``GYRO_BIAS_STD``
+            and ``gyro_scale_std``), weighed by their own noise (MAD); the covariance is marginal over them.
+            When at the solution the gyro accounts for less than ``MIN_EXPLAINED`` of the field's change, the
+            fit is redone without it.
+        gyro_scale_std: the prior standard deviation of each gyro scale error (``fitting_gyro.GYRO_SCALE_STD``).
 
     Raises:
         InputError: bad points, prior or argument; DegenerateDataError: fewer than 3 points;
@@ -238,6 +243,9 @@ def fit_with_prior(points: ArrayLike, prior: Calibration, *, sigma: float | None
     if sigma is not None and not (math.isfinite(sigma) and sigma > 0):
         msg = f"sigma must be a positive finite number, got {sigma!r}"
         raise InputError(msg)
+    if not (math.isfinite(gyro_scale_std) and gyro_scale_std > 0):
+        msg = f"gyro_scale_std must be a positive finite number, got {gyro_scale_std!r}"
+        raise InputError(msg)
     n0 = float(prior.norm)
     sp = norm_spreads(spread, len(pts), prior.matrix, n0)
     theta0, info0 = _prior_parts(prior, inflate)
@@ -255,11 +263,11 @@ def fit_with_prior(points: ArrayLike, prior: Calibration, *, sigma: float | None
         starts = _starts(pts, theta0, prior.raw_radius)
     term = None
     if gyro is not None and len(gyro):
-        at = theta0.size  # the gyro bias follows the calibration's parameters (and the norm)
-        theta0, info0 = np.r_[theta0, np.zeros(3)], np.pad(info0, (0, 3))
-        info0[at:, at:] = np.eye(3) / GYRO_BIAS_STD**2
+        at = theta0.size  # the gyro's bias and scale errors follow the calibration's parameters (and the norm)
+        theta0, info0 = np.r_[theta0, np.zeros(6)], np.pad(info0, (0, 6))
+        info0[at:, at:] = np.diag([GYRO_BIAS_STD**-2] * 3 + [gyro_scale_std**-2] * 3)
         chol = np.linalg.cholesky(info0).T
-        starts = [np.r_[th, np.zeros(3)] for th in starts]
+        starts = [np.r_[th, np.zeros(6)] for th in starts]
         term = _GyroTerm(gyro, 1.0, at)
     theta, s, iters = _best_solve(z, starts, theta0, info0, chol, n0, sigma, floor, max_iter, sp, term)
     geo = theta if term is None else theta[:term.at]
@@ -277,7 +285,7 @@ def fit_with_prior(points: ArrayLike, prior: Calibration, *, sigma: float | None
         iters += k
     share_g = math.nan
     if term is not None:
-        share_g = explained(gyro, gyro_residuals(gyro, *unpack(theta[:9], "sym"), theta[term.at:])[0])
+        share_g = explained(gyro, term.residuals(theta)[0])
         if not share_g >= MIN_EXPLAINED:  # rate and reading in different frames: the magnetometer alone
             alone = fit_with_prior(points, prior, sigma=sigma, inflate=inflate, max_iter=max_iter, stamp=stamp,
                                    time_ordered=time_ordered, norm_rel_std=norm_rel_std, start=start, spread=spread)
@@ -290,7 +298,7 @@ def fit_with_prior(points: ArrayLike, prior: Calibration, *, sigma: float | None
     prior_var = np.diag(np.linalg.inv(info0))[:9]
     share = 1.0 - np.clip(np.diag(post) / prior_var, 0.0, 1.0)
     updated = tuple(nm for nm, sh in zip(NAMES, share, strict=True) if sh >= 1.0 - UPDATED_VARIANCE_RATIO)
-    n = float(theta[9]) if theta0.size in (10, 13) else n0
+    n = float(theta[9]) if theta0.size in (10, 16) else n0
     b, mat = unpack(theta[:9], "sym")
     rn, _ = resjac(z, theta[:9], "sym", n)
     rms = float(np.sqrt(np.mean(rn * rn)))
@@ -303,7 +311,8 @@ def fit_with_prior(points: ArrayLike, prior: Calibration, *, sigma: float | None
                     data_share=dict(zip(NAMES, share.tolist(), strict=True)), sigma=s, iterations=iters,
                     residual_sigma=s if sigma is None else max(mad_sigma(r), floor), gyro_explained=share_g,
                     gyro_used=term is not None,
-                    gyro_bias=(0.0, 0.0, 0.0) if term is None else tuple(float(x) for x in theta[term.at:]))
+                    gyro_bias=(0.0, 0.0, 0.0) if term is None else tuple(float(x) for x in theta[term.at:term.at + 3]),
+                    gyro_scale=(0.0, 0.0, 0.0) if term is None else tuple(float(x) for x in theta[term.at + 3:]))
 
 
 def _best_solve(z: Array, starts: list[Array], theta0: Array, info0: Array, chol: Array, n0: float,
@@ -443,8 +452,7 @@ def _residuals(z: Array, theta: Array, n: float, sp: Array | None, white: Whiten
         r, jt = white(r), white(jt)
     if term is None:
         return r, jt
-    b, mat = unpack(theta[:9], "sym")
-    rg, jg = gyro_residuals(term.blocks, b, mat, theta[term.at:])
+    rg, jg = term.residuals(theta)
     full = np.zeros((theta.size, r.size + rg.size))
     full[:term.at, :r.size] = jt
     full[:9, r.size:] = term.weight * jg[:9]
@@ -455,15 +463,20 @@ def _residuals(z: Array, theta: Array, n: float, sp: Array | None, white: Whiten
 @dataclass
 class _GyroTerm:
     """The gyro blocks of a fit, the weight that brings their residuals' noise to the norm residuals' (``s /
-    s_g``, ``s_g`` their MAD noise, re-estimated with ``s``), and where the gyro bias starts in ``theta``."""
+    s_g``, ``s_g`` their MAD noise, re-estimated with ``s``), and where the gyro's bias and scale errors start
+    in ``theta``."""
 
     blocks: GyroBlocks
     weight: float
     at: int
 
+    def residuals(self, theta: Array) -> tuple[Array, Array]:
+        """``fitting_gyro.gyro_residuals`` at ``theta``."""
+        b, mat = unpack(theta[:9], "sym")
+        return gyro_residuals(self.blocks, b, mat, theta[self.at:self.at + 3], theta[self.at + 3:self.at + 6])
+
     def reweigh(self, theta: Array, s: float, floor: float) -> None:
-        rg = gyro_residuals(self.blocks, *unpack(theta[:9], "sym"), theta[self.at:])[0]
-        self.weight = s / max(mad_sigma(rg), floor)
+        self.weight = s / max(mad_sigma(self.residuals(theta)[0]), floor)
 
 
 def _cost(z: Array, theta: Array, theta0: Array, chol: Array, n: float, s: float, sp: Array | None = None,

@@ -129,6 +129,7 @@ class PipelineConfig:
     gyro_aided: bool = True  # magnetometer: a rate pushed with a sample joins the partial fit (model/fitting_gyro.py) ...
     gyro_samples: int = 15000  # ... the last this many samples with their rates (300 s at 50 Hz) ...
     gyro_block_s: float = 1.0  # ... in blocks of this length (the longer, the larger the turn against the noise)
+    gyro_scale_std: float = 0.02  # ... the prior sd of each gyro scale error (model/fitting_gyro.py GYRO_SCALE_STD)
     partial_min_azimuth: float = 0.9  # ... turned about body z: share of 36 azimuth sectors the field visits
     early_fit: bool = True  # rich motion, uncalibrated: publish a MAP fit once its predicted heading p95 is small ...
     early_heading_p95_deg: float = 1.0  # ... at most this at +-30 deg tilt
@@ -329,6 +330,7 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "gyro_aided": FieldSpec(bool),
     "gyro_samples": FieldSpec(int, 100, 1_000_000),
     "gyro_block_s": _real(0.0, 60.0, open_lo=True),
+    "gyro_scale_std": _real(0.0, 1.0, open_lo=True),
     "early_fit": FieldSpec(bool),
     "early_heading_p95_deg": _real(0.0, 180.0, open_lo=True),
     "early_interval_s": _real(0.0, 3600.0),

@@ -225,7 +225,8 @@ def partial_fit(series: Array, prior: Calibration | None, cfg: PipelineConfig, *
         norm_std = NORM_REL_STD if (sensor == "mag" and not cfg.reference_norm and kind == "broad") else 0.0
         for noise in (sigma, None) if sigma is not None else (None,):
             pf = fit_with_prior(series, prior, inflate=inflate, stamp=stamp, time_ordered=True, norm_rel_std=norm_std,
-                                sigma=noise, max_iter=max_iter, start=start, spread=spread, gyro=gyro)
+                                sigma=noise, max_iter=max_iter, start=start, spread=spread, gyro=gyro,
+                                gyro_scale_std=cfg.gyro_scale_std)
             if noise is None or abs(pf.residual_sigma / noise - 1.0) <= sigma_tolerance:
                 break  # the given noise fits the residuals (else: again with the noise estimated)
         cal = pf.calibration

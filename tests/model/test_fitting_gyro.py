@@ -31,16 +31,17 @@ def test_the_jacobian_is_the_residuals_derivative(independent: ModuleType) -> No
     blocks = gyro_blocks(rec["t"], rec["xyz"], rec["gyro"], 10)
     w = tr["W_sym"]
     rng = np.random.default_rng(3)
-    th = np.r_[tr["offset"], w[0, 0], w[1, 1], w[2, 2], w[0, 1], w[0, 2], w[1, 2], tr["gyro_bias"]]
-    th = th + rng.normal(0.0, 1e-3, 12) * np.r_[[1e-5] * 3, [1.0] * 9]
+    th = np.r_[tr["offset"], w[0, 0], w[1, 1], w[2, 2], w[0, 1], w[0, 2], w[1, 2], tr["gyro_bias"], 0.0, 0.0, 0.0]
+    th = th + rng.normal(0.0, 1e-3, 15) * np.r_[[1e-5] * 3, [1.0] * 12] + np.r_[[0.0] * 12, 0.02, -0.01, 0.03]
 
     def f(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return gyro_residuals(blocks, p[:3], _sym(p[3:9]), p[9:12])
+        return gyro_residuals(blocks, p[:3], _sym(p[3:9]), p[9:12], p[12:15])
 
     _, jt = f(th)
-    for i in range(12):
+    assert jt.shape == (15, 3 * len(blocks))
+    for i in range(15):
         h = 1e-12 if i < 3 else 1e-7
-        e = np.zeros(12)
+        e = np.zeros(15)
         e[i] = h
         num = (f(th + e)[0] - f(th - e)[0]) / (2 * h)
         assert np.max(np.abs(num - jt[i])) <= 1e-6 * np.max(np.abs(num)), i
@@ -50,12 +51,12 @@ def test_at_the_truth_the_residuals_are_noise_and_a_wrong_frame_explains_little(
     rec = _ground(independent, 5, 5.0, 60.0)
     tr = rec["truth"]
     blocks = gyro_blocks(rec["t"], rec["xyz"], rec["gyro"], 50)  # 1 s blocks, the stream's
-    r, _ = gyro_residuals(blocks, tr["offset"], tr["W_sym"], tr["gyro_bias"])
+    r, _ = gyro_residuals(blocks, tr["offset"], tr["W_sym"], tr["gyro_bias"], np.zeros(3))
     white = rec["meta"]["noise"]["white"]
     assert np.sqrt(np.mean(r * r)) < 2.0 * np.sqrt(2.0) * white  # two samples' white noise, and the gyro's
     assert explained(blocks, r) > 0.99
     swapped = gyro_blocks(rec["t"], rec["xyz"], rec["gyro"][:, [1, 0, 2]] * [1.0, -1.0, 1.0], 50)
-    r_sw, _ = gyro_residuals(swapped, tr["offset"], tr["W_sym"], tr["gyro_bias"])
+    r_sw, _ = gyro_residuals(swapped, tr["offset"], tr["W_sym"], tr["gyro_bias"], np.zeros(3))
     assert explained(swapped, r_sw) < MIN_EXPLAINED
 
 
@@ -63,7 +64,8 @@ def test_at_the_truth_the_residuals_are_noise_and_a_wrong_frame_explains_little(
 @given(seed=st.integers(0, 2**31 - 1), rate=st.floats(0.05, 2.0), soft=st.floats(0.0, 0.2))
 def test_noise_free_rotation_leaves_no_residual(seed: int, rate: float, soft: float) -> None:
     """Property: a constant field seen by a sensor turning at any rate, through any symmetric soft iron, hard
-    iron and gyro bias, leaves residuals at the trapezoid rule's error only (far below the field's change)."""
+    iron, gyro bias and gyro scale errors, leaves residuals at the trapezoid rule's error only (far below the
+    field's change)."""
     rng = np.random.default_rng(seed)
     n, dt = 400, 0.01
     axis = rng.normal(size=3)
@@ -85,9 +87,10 @@ def test_noise_free_rotation_leaves_no_residual(seed: int, rate: float, soft: fl
     w_mat = np.eye(3) + 0.5 * (a_soft + a_soft.T)
     b = rng.normal(size=3) * 20.0
     beta = rng.normal(size=3) * 0.02
+    kappa = rng.uniform(-0.05, 0.05, 3)
     raw = c @ np.linalg.inv(w_mat).T + b
-    blocks = gyro_blocks(np.arange(n) * dt, raw, omega + beta, 10)
-    r, _ = gyro_residuals(blocks, b, w_mat, beta)
+    blocks = gyro_blocks(np.arange(n) * dt, raw, (omega + beta) / (1.0 + kappa), 10)  # true = (1 + kappa) meas - beta
+    r, _ = gyro_residuals(blocks, b, w_mat, beta, kappa)
     assert np.sqrt(np.mean(r * r)) <= 1e-3 * np.sqrt(np.mean(blocks.d * blocks.d))
 
 
@@ -122,6 +125,7 @@ def test_the_gyro_fixes_what_a_ring_leaves_to_the_prior(independent: ModuleType)
     assert "w_zz" in alone.from_prior and not alone.gyro_used
     assert aided.gyro_used and aided.gyro_explained >= MIN_EXPLAINED and aided.from_prior == ()
     np.testing.assert_allclose(aided.gyro_bias[:2], tr["gyro_bias"][:2], atol=2e-3)  # the z bias: barely seen in yaw
+    assert abs(aided.gyro_scale[2]) < 0.005  # the generator's gyro has no scale error; yaw fixes the z axis's
 
     def p95(fit: object, tilt: float) -> float:
         c = fit.calibration  # type: ignore[attr-defined]
@@ -142,3 +146,11 @@ def test_a_gyro_in_another_frame_is_not_used(independent: ModuleType) -> None:
     assert not wrong.gyro_used and wrong.gyro_explained < MIN_EXPLAINED
     np.testing.assert_array_equal(wrong.calibration.offset, alone.calibration.offset)
     np.testing.assert_array_equal(wrong.calibration.matrix, alone.calibration.matrix)
+
+
+def test_a_bad_scale_prior_is_refused() -> None:
+    pts = np.random.default_rng(1).normal(size=(50, 3))
+    prior = broad_prior(pts, 1.0)
+    for bad in (0.0, -0.1, float("nan"), float("inf")):
+        with pytest.raises(InputError):
+            fit_with_prior(pts, prior, gyro_scale_std=bad)
