@@ -25,6 +25,10 @@ series before issue 14's fix). ``--norm sphere`` gives the fit the stream's norm
 per cent"; 0.17 gives the diagonal the broad prior's 0.1 standard deviation, as real sensors need: the
 real full-sphere recordings show vertical gains up to 10.5 % off the horizontal ones).
 
+``--gyro``: the generator's gyro joins the fit (``model.fitting_gyro``, 1 s blocks of the raw samples, the
+stream's), with ``--gyro-scale-std`` the prior of its scale errors (default the package's 2 %; the
+generator's gyro has none, so a small value asks whether the covariance is right for the gyro itself).
+
 Seeds 1-3 and 11-13 were used while designing the fit; seeds 100-109 were reported once before this
 study's last changes; seeds 200-209 (``--fresh``) are held out, run once after every choice was frozen.
 Run: ``python scripts/study_ground_robot.py [--seconds 300] [--quick] [--fresh] [--decimate mean|pick]
@@ -43,6 +47,7 @@ from types import ModuleType
 import numpy as np
 
 from ros_margcal.model.fitting_geometric import block_means
+from ros_margcal.model.fitting_gyro import GYRO_SCALE_STD, gyro_blocks
 from ros_margcal.model.fitting_prior import broad_prior, fit_with_prior
 from ros_margcal.model.heading import attitudes, heading_gradient, heading_p95, heading_std_deg, inclination_deg
 from ros_margcal.stream.observable import NORM_REL_STD, sphere_radius, tilt_seen_deg
@@ -105,7 +110,7 @@ def _in2_if_right(cal, tilt: float, inc: float, rng: np.random.Generator, draws:
 
 
 def case(gen: ModuleType, seed: int, tilt: float, seconds: float, how: str = "mean",
-         norm: str = "true", soft_iron: float = 0.05) -> dict[str, float]:
+         norm: str = "true", soft_iron: float = 0.05, gyro_scale_std: float | None = None) -> dict[str, float]:
     """One ground-robot recording: fit, measured and predicted heading p95, calibration of the covariance."""
     rec = gen.generate("mag", "ground", duration_s=seconds, rate_hz=50.0, seed=seed, tilt_deg=tilt,
                        symmetric_soft_iron=True, soft_iron=soft_iron)
@@ -113,7 +118,9 @@ def case(gen: ModuleType, seed: int, tilt: float, seconds: float, how: str = "me
     pts, spread = decimate(rec["xyz"], how)
     n, nrs = (tr["norm"], 0.0) if norm == "true" else (sphere_radius(pts), NORM_REL_STD)
     t0 = time.perf_counter()
-    kw = {"norm_rel_std": nrs} if nrs > 0 else {}  # (runs on the code before the norm's uncertainty, too)
+    kw: dict = {"norm_rel_std": nrs} if nrs > 0 else {}  # (runs on the code before the norm's uncertainty, too)
+    if gyro_scale_std is not None:  # the gyro, in 1 s blocks as the stream cuts them
+        kw |= {"gyro": gyro_blocks(rec["t"], rec["xyz"], rec["gyro"], 50), "gyro_scale_std": gyro_scale_std}
     pf = fit_with_prior(pts, broad_prior(pts, n), time_ordered=True, spread=spread, **kw)
     dt = time.perf_counter() - t0
     cal = pf.calibration
@@ -142,19 +149,23 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--decimate", choices=("mean", "pick"), default="mean", help="50 -> 5 Hz: block mean or pick")
     p.add_argument("--norm", choices=("true", "sphere"), default="true", help="the fit's norm (default the truth)")
     p.add_argument("--soft-iron", type=float, default=0.05, help="the generator's soft-iron amplitude (default 0.05)")
+    p.add_argument("--gyro", action="store_true", help="the generator's gyro joins the fit (model.fitting_gyro)")
+    p.add_argument("--gyro-scale-std", type=float, default=GYRO_SCALE_STD, help="prior sd of the gyro's scale errors")
     args = p.parse_args(argv)
     gen = independent_generator()
     if args.fresh:
         groups = {"fresh": FRESH}
     else:
         groups = {"tuning": TUNING, "held-out": HELD_OUT[:3] if args.quick else HELD_OUT}
-    print(f"decimation {args.decimate}, norm {args.norm}, soft iron {args.soft_iron}")
+    print(f"decimation {args.decimate}, norm {args.norm}, soft iron {args.soft_iron}"
+          + (f", gyro (scale prior {args.gyro_scale_std:g})" if args.gyro else ""))
     print(f"{'seeds':9s} {'tilt':>4s}  {'level meas/pred':>15s}  {'30deg meas/pred':>15s}  {'worst lvl':>9s}  "
           f"{'pred/meas lvl':>13s}  {'pred/meas 30':>12s}  {'z lvl':>5s}  {'z 30':>5s}  {'<=2.5 seen':>10s}  "
           f"{'offset xy':>9s}  {'fit ms':>6s}  {'in 2x lvl (right)':>17s}  {'in 2x 30 (right)':>16s}")
     for name, seeds in groups.items():
         for tilt in (5.0, 20.0):
-            rows = [case(gen, s, tilt, args.seconds, args.decimate, args.norm, args.soft_iron) for s in seeds]
+            rows = [case(gen, s, tilt, args.seconds, args.decimate, args.norm, args.soft_iron,
+                         args.gyro_scale_std if args.gyro else None) for s in seeds]
             col = {k: np.array([r[k] for r in rows]) for k in rows[0]}
             rl, r3 = col["level_pred"] / col["level"], col["tilt30_pred"] / col["tilt30"]
             print(f"{name:9s} {tilt:4.0f}  {np.median(col['level']):6.2f} / {np.median(col['level_pred']):5.2f}  "
