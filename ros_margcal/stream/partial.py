@@ -121,6 +121,7 @@ class PartialCalibration:
         self._az_seen: set[int] = set()  # ... and the sectors the series visited under it
         self._gyro_buf: deque[tuple[float, ...]] = deque(maxlen=cfg.gyro_samples)  # t, x, y, z, rate (nan: none)
         self._gyro_share = math.nan  # the last series fit's share of the field's turning the gyro accounted for
+        self._gyro_short = False  # ... or: it had rates, but too few complete blocks of them
 
     def _cadence(self) -> tuple[int, float]:
         """(samples, seconds) between evaluations, never fewer than ``refit_every // 2`` samples (the
@@ -145,6 +146,7 @@ class PartialCalibration:
             self._early_sigma = res.sigma
         if res is not None and not job.get("early") and res.calibration is not None:
             self._gyro_share = res.gyro_explained
+            self._gyro_short = bool(job.get("gyro_short"))
         if res is None or job.get("early") or job.get("prior") is not self._prior:
             return
         sound = res.calibration is not None and (not res.reason or res.over_limit is not None
@@ -263,6 +265,7 @@ class PartialCalibration:
 
     def _partial_compute(self, job: dict[str, Any]) -> tuple[Calibration | None, str]:
         gyro = self._gyro_blocks(job["gyro_rows"]) if job.get("gyro_rows") else None
+        job["gyro_short"] = bool(job.get("gyro_rows")) and gyro is None
         res = partial_fit(job["series"], job["prior"], job["config"], spread=job["spread"], recent=job["recent"], gyro=gyro,
                           current=job["current"],
                           stamp=job["t"], sensor=self.sensor, current_heading=job["current_heading"], sigma=job["sigma"],
@@ -318,6 +321,9 @@ class PartialCalibration:
             out += (f"; gyro-aided: the rate accounts for {100 * g:.1f} % of the field's turning" if g >= MIN_EXPLAINED
                     else f"; gyro not used: the rate accounts for {100 * g:.0f} % of the field's turning < "
                          f"{100 * MIN_EXPLAINED:.0f} % (are the IMU and magnetometer in one frame, in step?)")
+        elif self._gyro_short:
+            out += (f"; gyro not used: fewer than {self.GYRO_MIN_BLOCKS} blocks of {self.config.gyro_block_s:g} s with a "
+                    "rate on every sample (an Imu message within 20 ms of each MagneticField one, same frame_id?)")
         if self._partial_note:
             out += f"; {self._partial_note}"
         return out

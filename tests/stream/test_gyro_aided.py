@@ -148,3 +148,15 @@ def test_a_gyro_with_scale_errors_keeps_the_level_heading_and_an_honest_tilted_f
     assert st.gyro_explained is not None and st.gyro_explained > 0.99
     assert _p95(ring, cal.calibration, 0.0) < 0.5
     assert st.heading_p95_tilt30_deg is not None and _p95(ring, cal.calibration, 30.0) < 2.0 * st.heading_p95_tilt30_deg
+
+
+def test_too_few_rates_are_said_not_used(ring: dict[str, Any], alone: tuple[SensorCalibrator, list[Any]]) -> None:
+    """An IMU slower than the magnetometer (a rate on one sample in five): no complete block, the status says why."""
+    rates: list[Any] = [g if k % 5 == 0 else None for k, g in enumerate(ring["gyro"].tolist())]
+    cal = SensorCalibrator("mag")
+    events = []
+    for t, v, g in zip(ring["t"].tolist(), ring["xyz"].tolist(), rates, strict=True):
+        events += [e for e in cal.push(t, v, g) if e.kind is EventKind.CALIBRATED]
+    st = cal.status()
+    assert st.gyro_explained is None and "gyro not used: fewer than 20 blocks" in st.message, st.message
+    assert [e.t for e in events] == [e.t for e in alone[1]]
