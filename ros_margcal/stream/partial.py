@@ -316,17 +316,22 @@ class PartialCalibration:
         f = self._figures
         if f is not None and self._cal is not None:
             out += f"; heading p95 {f.level_deg:.2f} deg level, {f.tilt30_deg:.2f} deg at 30 deg tilt (predicted)"
-        g = self._gyro_share
+        g = self._gyro_share if self._gyro_applies() else math.nan
         if math.isfinite(g):
             out += (f"; gyro-aided: the rate accounts for {100 * g:.1f} % of the field's turning" if g >= MIN_EXPLAINED
                     else f"; gyro not used: the rate accounts for {100 * g:.0f} % of the field's turning < "
                          f"{100 * MIN_EXPLAINED:.0f} % (are the IMU and magnetometer in one frame, in step?)")
-        elif self._gyro_short:
+        elif self._gyro_short and self._gyro_applies():
             out += (f"; gyro not used: fewer than {self.GYRO_MIN_BLOCKS} blocks of {self.config.gyro_block_s:g} s with a "
                     "rate on every sample (an Imu message within 20 ms of each MagneticField one, same frame_id?)")
         if self._partial_note:
             out += f"; {self._partial_note}"
         return out
+
+    def _gyro_applies(self) -> bool:
+        """The gyro's share speaks of the calibration in use (a partial one) or of the fits refused while there
+        is none; a full calibration did without it."""
+        return self._cal is None or self._partial is not None
 
     def _partial_fields(self) -> dict[str, Any]:
         """The Status fields of the partial calibration and the heading figures."""
@@ -338,5 +343,5 @@ class PartialCalibration:
             "heading_p95_level_deg": None if (f is None or cal is None) else f.level_deg,
             "heading_p95_tilt30_deg": None if (f is None or cal is None) else f.tilt30_deg,
             "tilt_seen_deg": None if (p is None or cal is None) else p.tilt_seen_deg,
-            "gyro_explained": self._gyro_share if math.isfinite(self._gyro_share) else None,
+            "gyro_explained": self._gyro_share if (math.isfinite(self._gyro_share) and self._gyro_applies()) else None,
         }
