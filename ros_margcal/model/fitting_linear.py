@@ -234,6 +234,9 @@ def _mvee_newton(q: Array, u: Array, tol: float) -> Array | None:
 
 
 def sqrt_pd(a: Array) -> Array:
-    """Symmetric square root of a positive-definite matrix (``W = A^(1/2)``, Gietzelt Eq. 2)."""
+    """Symmetric square root of a positive-definite matrix (``W = A^(1/2)``, Gietzelt Eq. 2); NaN entries,
+    without a runtime warning, when ``A`` is not positive definite (the points fit no ellipsoid: the caller's
+    finite check refuses the fit)."""
     ev, vec = np.linalg.eigh(0.5 * (a + a.T))
-    return (vec * np.sqrt(ev)) @ vec.T
+    with np.errstate(invalid="ignore"):
+        return (vec * np.sqrt(ev)) @ vec.T

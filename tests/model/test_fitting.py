@@ -440,3 +440,16 @@ def test_cli_calibrate(tmp_path: Path, rng: np.random.Generator, capsys: pytest.
     np.testing.assert_allclose(cal.offset, truth.offset, atol=0.2)
     d = json.loads(js.read_text(encoding="utf-8"))
     assert d["model"] == "sym" and set(d["std"]) >= {"b_x", "w_yz"} and d["stats"]["n_points"] == 300
+
+
+def test_the_square_root_of_a_matrix_that_is_no_ellipsoid_is_nan_without_a_warning() -> None:
+    """The algebraic fit of points on no ellipsoid gives an indefinite A: NaN (refused by the caller's
+    finite check), not a RuntimeWarning on the console (the diagnosis benchmark printed several)."""
+    import warnings
+
+    from ros_margcal.model.fitting_linear import sqrt_pd
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert np.isnan(sqrt_pd(np.diag([1.0, 1.0, -0.5]))).any()
+        np.testing.assert_allclose(sqrt_pd(np.diag([4.0, 9.0, 1.0])), np.diag([2.0, 3.0, 1.0]))
