@@ -46,8 +46,10 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .errors import InputError
+from .fitting_core import mad_sigma, unpack
 
-__all__ = ["GYRO_BIAS_STD", "GYRO_SCALE_STD", "MIN_EXPLAINED", "GyroBlocks", "explained", "gyro_blocks", "gyro_residuals"]
+__all__ = ["GYRO_BIAS_STD", "GYRO_SCALE_STD", "MIN_EXPLAINED", "GyroBlocks", "GyroTerm", "explained", "gyro_blocks",
+           "gyro_residuals"]
 
 Array = NDArray[np.float64]
 
@@ -174,6 +176,26 @@ def gyro_residuals(blocks: GyroBlocks, b: Array, mat: Array, beta: Array, kappa:
         du = np.tensordot(w6, blocks.ax[:, k], 1) - blocks.theta[:, k:k + 1] * np.cross(eye[k], wb)
         jt[12 + k] = du @ winv_t
     return r.reshape(-1), jt.reshape(15, -1)
+
+
+@dataclass
+class GyroTerm:
+    """The gyro blocks of a MAP fit (``fitting_prior``), the weight that brings their residuals' noise to the
+    norm residuals' (``s / s_g``, ``s_g`` their MAD noise, re-estimated with ``s``), and where the gyro's bias
+    and scale errors start in the fit's parameter vector."""
+
+    blocks: GyroBlocks
+    weight: float
+    at: int
+
+    def residuals(self, theta: Array) -> tuple[Array, Array]:
+        """``gyro_residuals`` at the fit's parameters ``theta`` (the symmetric model's nine first)."""
+        b, mat = unpack(theta[:9], "sym")
+        return gyro_residuals(self.blocks, b, mat, theta[self.at:self.at + 3], theta[self.at + 3:self.at + 6])
+
+    def reweigh(self, theta: Array, s: float, floor: float) -> None:
+        """Bring the gyro residuals' noise at ``theta`` to ``s`` (at least ``floor``)."""
+        self.weight = s / max(mad_sigma(self.residuals(theta)[0]), floor)
 
 
 def explained(blocks: GyroBlocks, r: Array) -> float:

@@ -96,7 +96,7 @@ from .calibration import Calibration, FitStats
 from .errors import ConvergenceError, DegenerateDataError, InputError, as_points
 from .fitting_core import mad_sigma, pack, parameter_names, resjac, unpack
 from .fitting_geometric import geometric, norm_spreads
-from .fitting_gyro import GYRO_BIAS_STD, GYRO_SCALE_STD, MIN_EXPLAINED, GyroBlocks, explained, gyro_residuals
+from .fitting_gyro import GYRO_BIAS_STD, GYRO_SCALE_STD, MIN_EXPLAINED, GyroBlocks, GyroTerm, explained
 from .fitting_noise import Whitener, noise_model, whitener
 
 __all__ = ["BROAD_MATRIX_STD", "BROAD_OFFSET_STD", "UPDATED_VARIANCE_RATIO", "PriorFit", "broad_prior", "fit_with_prior",
@@ -268,7 +268,7 @@ def fit_with_prior(points: ArrayLike, prior: Calibration, *, sigma: float | None
         info0[at:, at:] = np.diag([GYRO_BIAS_STD**-2] * 3 + [gyro_scale_std**-2] * 3)
         chol = np.linalg.cholesky(info0).T
         starts = [np.r_[th, np.zeros(6)] for th in starts]
-        term = _GyroTerm(gyro, 1.0, at)
+        term = GyroTerm(gyro, 1.0, at)
     theta, s, iters = _best_solve(z, starts, theta0, info0, chol, n0, sigma, floor, max_iter, sp, term)
     geo = theta if term is None else theta[:term.at]
     r = geometric(z, geo, n0, sp)[0]
@@ -317,7 +317,7 @@ def fit_with_prior(points: ArrayLike, prior: Calibration, *, sigma: float | None
 
 def _best_solve(z: Array, starts: list[Array], theta0: Array, info0: Array, chol: Array, n0: float,
                 sigma: float | None, floor: float, max_iter: int, sp: Array | None,
-                term: _GyroTerm | None = None) -> tuple[Array, float, int]:
+                term: GyroTerm | None = None) -> tuple[Array, float, int]:
     """The unweighted MAP solve from each start; the lowest posterior cost wins, every start judged at the
     lowest noise found: theta, sigma, evaluations.
 
@@ -374,7 +374,7 @@ def _sphere_centres(pts: Array, radius: float) -> tuple[list[Array], bool]:
 
 
 def _solve(z: Array, start: Array, theta0: Array, info0: Array, n: float, sigma: float | None, floor: float,
-           max_iter: int, sp: Array | None = None, term: _GyroTerm | None = None) -> tuple[Array, float, int]:
+           max_iter: int, sp: Array | None = None, term: GyroTerm | None = None) -> tuple[Array, float, int]:
     """One MAP solve from ``start`` (sigma, and the gyro's weight, re-estimated between rounds unless sigma
     is given): theta, sigma, evaluations."""
     theta, iters = start.copy(), 0
@@ -395,7 +395,7 @@ def _solve(z: Array, start: Array, theta0: Array, info0: Array, n: float, sigma:
 
 
 def _lm(z: Array, theta: Array, theta0: Array, info0: Array, n: float, s: float, max_iter: int,
-        sp: Array | None = None, white: Whitener | None = None, term: _GyroTerm | None = None) -> tuple[Array, int]:
+        sp: Array | None = None, white: Whitener | None = None, term: GyroTerm | None = None) -> tuple[Array, int]:
     """Levenberg-Marquardt on ``S(theta)`` through its normal equations: ``(H + lam diag H) step = -g`` with
     ``H = J^T J / s^2 + P_0^-1`` (10 x 10 at most), one residual-and-Jacobian evaluation per trial, the damping
     updated from the ratio of the actual to the predicted decrease (Nielsen's rule); stops when a step
@@ -444,9 +444,9 @@ def _lm(z: Array, theta: Array, theta0: Array, info0: Array, n: float, s: float,
 
 
 def _residuals(z: Array, theta: Array, n: float, sp: Array | None, white: Whitener | None,
-               term: _GyroTerm | None = None) -> tuple[Array, Array]:
+               term: GyroTerm | None = None) -> tuple[Array, Array]:
     """``fitting_geometric.geometric``, through the whitening filter when one is given, and the gyro's
-    residuals after them, brought to the same noise (``_GyroTerm.weight``)."""
+    residuals after them, brought to the same noise (``GyroTerm.weight``)."""
     r, jt = geometric(z, theta if term is None else theta[:term.at], n, sp)
     if white is not None:
         r, jt = white(r), white(jt)
@@ -460,27 +460,8 @@ def _residuals(z: Array, theta: Array, n: float, sp: Array | None, white: Whiten
     return np.concatenate([r, term.weight * rg]), full
 
 
-@dataclass
-class _GyroTerm:
-    """The gyro blocks of a fit, the weight that brings their residuals' noise to the norm residuals' (``s /
-    s_g``, ``s_g`` their MAD noise, re-estimated with ``s``), and where the gyro's bias and scale errors start
-    in ``theta``."""
-
-    blocks: GyroBlocks
-    weight: float
-    at: int
-
-    def residuals(self, theta: Array) -> tuple[Array, Array]:
-        """``fitting_gyro.gyro_residuals`` at ``theta``."""
-        b, mat = unpack(theta[:9], "sym")
-        return gyro_residuals(self.blocks, b, mat, theta[self.at:self.at + 3], theta[self.at + 3:self.at + 6])
-
-    def reweigh(self, theta: Array, s: float, floor: float) -> None:
-        self.weight = s / max(mad_sigma(self.residuals(theta)[0]), floor)
-
-
 def _cost(z: Array, theta: Array, theta0: Array, chol: Array, n: float, s: float, sp: Array | None = None,
-          term: _GyroTerm | None = None) -> float:
+          term: GyroTerm | None = None) -> float:
     """The posterior cost ``S(theta)`` at noise ``s``."""
     r = _residuals(z, theta, n, sp, None, term)[0] / s
     dp = chol @ (theta - theta0)
