@@ -270,8 +270,7 @@ def fit_with_prior(points: ArrayLike, prior: Calibration, *, sigma: float | None
         starts = [np.r_[th, np.zeros(6)] for th in starts]
         term = GyroTerm(gyro, 1.0, at)
     theta, s, iters = _best_solve(z, starts, theta0, info0, chol, n0, sigma, floor, max_iter, sp, term)
-    geo = theta if term is None else theta[:term.at]
-    r = geometric(z, geo, n0, sp)[0]
+    r = geometric(z, _geo(theta, term), n0, sp)[0]
     model = noise_model(r) if time_ordered else None
     white = None if model is None else whitener(model)  # coloured: generalised least squares (module docstring)
     s_w = s if white is None else max(mad_sigma(white(r)), floor)
@@ -290,7 +289,7 @@ def fit_with_prior(points: ArrayLike, prior: Calibration, *, sigma: float | None
             alone = fit_with_prior(points, prior, sigma=sigma, inflate=inflate, max_iter=max_iter, stamp=stamp,
                                    time_ordered=time_ordered, norm_rel_std=norm_rel_std, start=start, spread=spread)
             return dataclasses.replace(alone, gyro_explained=share_g)
-    r = geometric(z, theta if term is None else theta[:term.at], n0, sp)[0]
+    r = geometric(z, _geo(theta, term), n0, sp)[0]
     _, jt = _residuals(z, theta, n0, sp, white, term)
     data_info = jt @ jt.T / (s_w * s_w)
     post = np.linalg.inv(data_info + info0)[:9, :9]
@@ -298,7 +297,7 @@ def fit_with_prior(points: ArrayLike, prior: Calibration, *, sigma: float | None
     prior_var = np.diag(np.linalg.inv(info0))[:9]
     share = 1.0 - np.clip(np.diag(post) / prior_var, 0.0, 1.0)
     updated = tuple(nm for nm, sh in zip(NAMES, share, strict=True) if sh >= 1.0 - UPDATED_VARIANCE_RATIO)
-    n = float(theta[9]) if theta0.size in (10, 16) else n0
+    n = float(theta[9]) if norm_rel_std > 0 else n0
     b, mat = unpack(theta[:9], "sym")
     rn, _ = resjac(z, theta[:9], "sym", n)
     rms = float(np.sqrt(np.mean(rn * rn)))
@@ -381,7 +380,7 @@ def _solve(z: Array, start: Array, theta0: Array, info0: Array, n: float, sigma:
     s = sigma
     for _ in range(1 if sigma is not None else 3):
         if sigma is None:
-            s = max(mad_sigma(geometric(z, theta if term is None else theta[:term.at], n, sp)[0]), floor)
+            s = max(mad_sigma(geometric(z, _geo(theta, term), n, sp)[0]), floor)
         assert s is not None
         if term is not None:
             term.reweigh(theta, s, floor)
@@ -447,7 +446,7 @@ def _residuals(z: Array, theta: Array, n: float, sp: Array | None, white: Whiten
                term: GyroTerm | None = None) -> tuple[Array, Array]:
     """``fitting_geometric.geometric``, through the whitening filter when one is given, and the gyro's
     residuals after them, brought to the same noise (``GyroTerm.weight``)."""
-    r, jt = geometric(z, theta if term is None else theta[:term.at], n, sp)
+    r, jt = geometric(z, _geo(theta, term), n, sp)
     if white is not None:
         r, jt = white(r), white(jt)
     if term is None:
@@ -458,6 +457,11 @@ def _residuals(z: Array, theta: Array, n: float, sp: Array | None, white: Whiten
     full[:9, r.size:] = term.weight * jg[:9]
     full[term.at:, r.size:] = term.weight * jg[9:]
     return np.concatenate([r, term.weight * rg]), full
+
+
+def _geo(theta: Array, term: GyroTerm | None) -> Array:
+    """The parameters of the geometric residual: ``theta`` without the gyro's (they follow at ``term.at``)."""
+    return theta if term is None else theta[:term.at]
 
 
 def _cost(z: Array, theta: Array, theta0: Array, chol: Array, n: float, s: float, sp: Array | None = None,

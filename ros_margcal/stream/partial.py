@@ -221,13 +221,14 @@ class PartialCalibration:
         elif self._gyro_buf:
             self._gyro_buf.append((t, x, y, z, math.nan, math.nan, math.nan))
 
-    def _gyro_blocks(self, rows: list[tuple[float, ...]]) -> Any:
-        """The gyro blocks of ``rows`` (``_gyro_buf``'s), ``gyro_block_s`` long; None when too few (off-lock)."""
-        if len(rows) < self.GYRO_MIN_BLOCKS * 2:
+    def _gyro_blocks(self, rows: list[tuple[float, ...]], cfg: PipelineConfig) -> Any:
+        """The gyro blocks of ``rows`` (``_gyro_buf``'s), ``cfg.gyro_block_s`` long; None when too few (off-lock,
+        so the job's options, not the calibrator's)."""
+        if len(rows) < self.GYRO_MIN_BLOCKS * 2:  # a block holds two samples at least
             return None
         arr = np.array(rows, dtype=np.float64)
         step = float(np.median(np.diff(arr[:, 0])))
-        k = max(2, round(self.config.gyro_block_s / step)) if step > 0 else 2
+        k = max(2, round(cfg.gyro_block_s / step)) if step > 0 else 2
         blocks = gyro_blocks(arr[:, 0], arr[:, 1:4], arr[:, 4:7], k)
         return blocks if len(blocks) >= self.GYRO_MIN_BLOCKS else None
 
@@ -264,8 +265,8 @@ class PartialCalibration:
                 "current_heading": None if cur is None else cur.heading_seen_deg}
 
     def _partial_compute(self, job: dict[str, Any]) -> tuple[Calibration | None, str]:
-        gyro = self._gyro_blocks(job["gyro_rows"]) if job.get("gyro_rows") else None
-        job["gyro_short"] = bool(job.get("gyro_rows")) and gyro is None
+        gyro = self._gyro_blocks(job["gyro_rows"], job["config"]) if job["gyro_rows"] else None
+        job["gyro_short"] = bool(job["gyro_rows"]) and gyro is None
         res = partial_fit(job["series"], job["prior"], job["config"], spread=job["spread"], recent=job["recent"], gyro=gyro,
                           current=job["current"],
                           stamp=job["t"], sensor=self.sensor, current_heading=job["current_heading"], sigma=job["sigma"],
