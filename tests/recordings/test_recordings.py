@@ -401,17 +401,29 @@ def test_example_recording_matches_its_truth() -> None:
     assert np.sqrt(np.mean(wrong**2)) > 0.2
 
 
-def _bag_content(path: Path) -> tuple[list[tuple[str, str]], list[tuple[str, int, bytes]]]:
-    """What a bag means, not its bytes: (topic, type) per connection and (topic, receive time, CDR message) in order.
+def _bag_content(path: Path) -> tuple[list[tuple[str, str]], list[tuple[str, int, str, int, int]], np.ndarray]:
+    """What a bag means, not its bytes: (topic, type) per connection; (topic, receive time, frame_id, header stamp)
+    per message in order; and every message's float fields (vectors and covariances) as one array.
 
-    The compressed chunks of an .mcap depend on the zstd build pip installs, so the bytes are no criterion.
+    The compressed chunks of an .mcap depend on the zstd build pip installs, so the bytes are no criterion; the
+    floats may differ in their last bit between CPUs (numpy's SIMD sin, cos and exp), so they are compared to
+    a relative 1e-9 by the caller.
     """
     from rosbags.rosbag2 import Reader  # optional dependency, as in the package
+    from rosbags.typesys import Stores, get_typestore
 
+    store = get_typestore(Stores.ROS2_JAZZY)
+    meta, values = [], []
     with Reader(path) as reader:
         conns = sorted((c.topic, c.msgtype) for c in reader.connections)
-        messages = [(c.topic, ns, bytes(data)) for c, ns, data in reader.messages()]
-    return conns, messages
+        for c, ns, data in reader.messages():
+            msg = store.deserialize_cdr(bytes(data), c.msgtype)
+            meta.append((c.topic, ns, msg.header.frame_id, msg.header.stamp.sec, msg.header.stamp.nanosec))
+            fields = ("orientation", "angular_velocity", "linear_acceleration") if hasattr(msg, "orientation") else ("magnetic_field",)
+            vec = [getattr(getattr(msg, f), a) for f in fields for a in ("x", "y", "z", "w") if hasattr(getattr(msg, f), a)]
+            covs = [np.asarray(v, float) for k, v in vars(msg).items() if k.endswith("covariance")]
+            values.append(np.concatenate([np.asarray(vec, float), *covs]))
+    return conns, meta, np.concatenate(values)
 
 
 def test_make_example_is_deterministic(tmp_path: Path) -> None:
@@ -425,11 +437,20 @@ def test_make_example_is_deterministic(tmp_path: Path) -> None:
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     bag, truth = module.make(tmp_path)
-    conns, messages = _bag_content(bag)
-    shipped_conns, shipped_messages = _bag_content(data / "example_imu.mcap")
+    conns, messages, values = _bag_content(bag)
+    shipped_conns, shipped_messages, shipped_values = _bag_content(data / "example_imu.mcap")
     assert conns == shipped_conns == [("/imu/data_raw", "sensor_msgs/msg/Imu"), ("/imu/mag", "sensor_msgs/msg/MagneticField")]
     assert len(messages) == len(shipped_messages) == 54000
-    assert messages == shipped_messages  # topics, receive stamps and every serialised value, bit for bit
+    assert messages == shipped_messages  # topics, receive stamps, frames and header stamps exactly
+    assert values.shape == shipped_values.shape
+    np.testing.assert_allclose(values, shipped_values, rtol=1e-9, atol=0.0)  # every value, up to the CPU's last bits
     made, shipped = load_calibrations(truth), load_calibrations(data / "example_truth.yaml")
     assert list(made) == list(shipped) == ["accel", "mag_before", "mag_after"]
-    assert {k: c.to_dict() for k, c in made.items()} == {k: c.to_dict() for k, c in shipped.items()}
+    for name, cal in made.items():
+        mine, theirs = cal.to_dict(), shipped[name].to_dict()
+        assert mine.keys() == theirs.keys(), name
+        for key, value in mine.items():
+            if isinstance(value, (int, float, list)) and not isinstance(value, bool):
+                np.testing.assert_allclose(np.asarray(value, float), np.asarray(theirs[key], float), rtol=1e-9, atol=0.0)
+            else:
+                assert value == theirs[key], (name, key)
