@@ -124,8 +124,11 @@ def _heading_lines(st: Status) -> list[str]:
     """The predicted heading error and the partial calibration's parameters, for the final state."""
     out = []
     if st.heading_p95_level_deg is not None and st.heading_p95_tilt30_deg is not None:
-        out.append(f"    heading error (predicted p95): {st.heading_p95_level_deg:.2f} deg level, "
+        out.append(f"    heading error (predicted p95, 95 % bound): {st.heading_p95_level_deg:.2f} deg level, "
                    f"{st.heading_p95_tilt30_deg:.2f} deg at +-30 deg tilt")
+    if st.heading_typical_level_deg is not None and st.heading_typical_tilt30_deg is not None:
+        out.append(f"    heading error (predicted p95, typical): {st.heading_typical_level_deg:.2f} deg level, "
+                   f"{st.heading_typical_tilt30_deg:.2f} deg at +-30 deg tilt")
     if st.updated_parameters:
         seen = "" if st.tilt_seen_deg is None else f" (data tilted up to {st.tilt_seen_deg:.1f} deg)"
         out.append(f"    {'partial' if st.partial else 'MAP'} calibration{seen}: updated {' '.join(st.updated_parameters)}; "
@@ -166,6 +169,7 @@ def run(args: argparse.Namespace) -> int:
             for line in _heading_lines(st):
                 print(line)
             entry["heading_p95_deg"] = {"level": st.heading_p95_level_deg, "tilt30": st.heading_p95_tilt30_deg}
+            entry["heading_typical_deg"] = {"level": st.heading_typical_level_deg, "tilt30": st.heading_typical_tilt30_deg}
             entry["partial"] = {"partial": st.partial, "updated": list(st.updated_parameters),
                                 "from_prior": list(st.prior_parameters), "tilt_seen_deg": st.tilt_seen_deg}
             ref = _truth_for(truth, s)

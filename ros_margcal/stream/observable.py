@@ -61,6 +61,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from numpy.typing import NDArray
@@ -70,7 +71,7 @@ from ..model.errors import MargCalError
 from ..model.fitting_core import parameter_names
 from ..model.fitting_gyro import GyroBlocks
 from ..model.fitting_prior import broad_prior, fit_with_prior, posterior_at
-from ..model.heading import heading_p95, inclination_deg
+from ..model.heading import heading_p95, heading_p95_typical, inclination_deg
 from .config import PipelineConfig, guard_rails
 
 __all__ = ["AZIMUTH_SECTORS", "DEFAULT_INCLINATION_DEG", "SIGMA_REUSE_TOLERANCE", "HeadingFigures", "PartialResult",
@@ -89,13 +90,30 @@ DEFAULT_INCLINATION_DEG = 60.0
 """Field inclination assumed for the heading figures of a full calibration (mid latitudes) unless configured."""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class HeadingFigures:
-    """Predicted heading error (p95, degrees) of a magnetometer calibration: level and at ±30° tilt."""
+    """Predicted heading error (p95, degrees) of a magnetometer calibration, level and at ±30° tilt: the 95 %
+    bound (``level_deg``, ``tilt30_deg``, the publication rules' figure) and the typical figure, the p95 it most
+    likely measures (``*_typical_deg``, ``heading.heading_p95_typical`` of ``calibration``, the one with the
+    covariance). The typical figures cost a few ms: computed when a status first asks for them, then kept."""
 
     level_deg: float
     tilt30_deg: float
     inclination_deg: float
+    calibration: Calibration | None = None
+
+    @cached_property
+    def level_typical_deg(self) -> float:
+        return self._typical(0.0)
+
+    @cached_property
+    def tilt30_typical_deg(self) -> float:
+        return self._typical(30.0)
+
+    def _typical(self, tilt: float) -> float:
+        if self.calibration is None:
+            return math.nan
+        return heading_p95_typical(self.calibration, tilt_deg=tilt, inclination=self.inclination_deg)
 
 
 @dataclass(frozen=True)
@@ -178,7 +196,7 @@ def _inclination(cfg: PipelineConfig, cal: Calibration, raw: Array | None) -> fl
 
 def _figures(cal: Calibration, inc: float) -> HeadingFigures:
     return HeadingFigures(heading_p95(cal, tilt_deg=0.0, inclination=inc),
-                          heading_p95(cal, tilt_deg=30.0, inclination=inc), inc)
+                          heading_p95(cal, tilt_deg=30.0, inclination=inc), inc, cal)
 
 
 def heading_figures(cal: Calibration, points: Array, cfg: PipelineConfig) -> tuple[HeadingFigures, Calibration] | None:

@@ -316,7 +316,8 @@ class PartialCalibration:
             out += f"; partial: updated {','.join(p.updated)}, from prior {','.join(p.from_prior) or 'none'}"
         f = self._figures
         if f is not None and self._cal is not None:
-            out += f"; heading p95 {f.level_deg:.2f} deg level, {f.tilt30_deg:.2f} deg at 30 deg tilt (predicted)"
+            out += (f"; heading p95 {f.level_deg:.2f} deg level, {f.tilt30_deg:.2f} deg at 30 deg tilt (predicted 95 % bound; "
+                    f"typical {f.level_typical_deg:.2f} / {f.tilt30_typical_deg:.2f} deg)")
         g = self._gyro_share if self._gyro_applies() else math.nan
         if math.isfinite(g):
             out += (f"; gyro-aided: the rate accounts for {100 * g:.1f} % of the field's turning" if g >= MIN_EXPLAINED
@@ -343,6 +344,10 @@ class PartialCalibration:
             "prior_parameters": tuple(p.from_prior) if (p is not None and cal is not None) else (),
             "heading_p95_level_deg": None if (f is None or cal is None) else f.level_deg,
             "heading_p95_tilt30_deg": None if (f is None or cal is None) else f.tilt30_deg,
+            "heading_typical_level_deg": None if (f is None or cal is None or not math.isfinite(f.level_typical_deg))
+            else f.level_typical_deg,
+            "heading_typical_tilt30_deg": None if (f is None or cal is None or not math.isfinite(f.tilt30_typical_deg))
+            else f.tilt30_typical_deg,
             "tilt_seen_deg": None if (p is None or cal is None) else p.tilt_seen_deg,
             "gyro_explained": self._gyro_share if (math.isfinite(self._gyro_share) and self._gyro_applies()) else None,
         }

@@ -90,6 +90,8 @@ class Status:
     prior_parameters: tuple[str, ...] = ()  # partial: the parameters kept from the prior
     heading_p95_level_deg: float | None = None  # magnetometer: predicted heading error p95, level, degrees
     heading_p95_tilt30_deg: float | None = None  # ... with roll and pitch up to 30 deg
+    heading_typical_level_deg: float | None = None  # magnetometer: the heading p95 it most likely measures (median), level
+    heading_typical_tilt30_deg: float | None = None  # ... with roll and pitch up to 30 deg
     tilt_seen_deg: float | None = None  # partial: the tilt range of the data it was fitted on, degrees
     gyro_explained: float | None = None  # magnetometer: share of the field's turning the gyro accounted for (None: no gyro)
 
@@ -136,6 +138,8 @@ class Status:
             ("prior_parameters", " ".join(self.prior_parameters)),
             ("heading_p95_level_deg", num(self.heading_p95_level_deg, "{:.3g}")),
             ("heading_p95_tilt30_deg", num(self.heading_p95_tilt30_deg, "{:.3g}")),
+            ("heading_typical_level_deg", num(self.heading_typical_level_deg, "{:.3g}")),
+            ("heading_typical_tilt30_deg", num(self.heading_typical_tilt30_deg, "{:.3g}")),
             ("tilt_seen_deg", num(self.tilt_seen_deg, "{:.3g}")),
             ("gyro_explained", num(self.gyro_explained, "{:.4g}")),
         ]
@@ -157,6 +161,8 @@ class Status:
             "gyro_ignored": self.gyro_ignored, "partial": self.partial,
             "updated_parameters": list(self.updated_parameters), "prior_parameters": list(self.prior_parameters),
             "heading_p95_level_deg": self.heading_p95_level_deg, "heading_p95_tilt30_deg": self.heading_p95_tilt30_deg,
+            "heading_typical_level_deg": self.heading_typical_level_deg,
+            "heading_typical_tilt30_deg": self.heading_typical_tilt30_deg,
             "tilt_seen_deg": self.tilt_seen_deg, "gyro_explained": self.gyro_explained,
         }
 

@@ -191,7 +191,7 @@ def generate(sensor="mag", motion="tumble", duration_s=60.0, rate_hz=50.0, seed=
              noise=None, colored_noise=None, noise_tau_s=5.0,
              effect="none", magnitude=None, t_jump=None, unit=None, lsb=None,
              field_uT=48.0, inclination_deg=60.0, declination_deg=3.0, jitter_s=0.0,
-             with_gyro=True, with_temp=False, gyro_noise=0.003, gyro_bias=0.005) -> dict:
+             with_gyro=True, with_temp=False, gyro_noise=0.003, gyro_bias=0.005, gyro_scale=0.0) -> dict:
     """Simulate one recording; returns {"t","xyz","gyro","temp","truth","meta"} (numpy arrays).
 
     sensor "mag" (field from intensity/inclination/declination, ENU) or "accel" (specific force,
@@ -204,6 +204,9 @@ def generate(sensor="mag", motion="tumble", duration_s=60.0, rate_hz=50.0, seed=
     moving.  ground: yaw segments (turn / straight), |roll|, |pitch| <= tilt_deg.  band: |roll|,
     |pitch| <= band_deg.  hemisphere: |roll|, |pitch| <= 80° (body z up).  jitter_s: time-stamp jitter.
     unit: "T" | "uT" | "counts" for mag, "m/s2" | "counts" for accel (counts: raw = round(SI / lsb)).
+    gyro: body rate + constant bias N(0, gyro_bias) + white N(0, gyro_noise), rad/s; gyro_scale: per-axis
+    sensitivity error U(-gyro_scale, gyro_scale) (0.03: the ±3 % tolerance of common MEMS gyros' data sheets),
+    drawn after the other gyro draws so that gyro_scale=0 leaves every recording as it was.
     """
     if sensor not in ("mag", "accel"):
         raise ValueError(f"sensor must be 'mag' or 'accel', got {sensor!r}")
@@ -325,16 +328,17 @@ def generate(sensor="mag", motion="tumble", duration_s=60.0, rate_hz=50.0, seed=
     gyro = None
     bias_g = r_gyro.normal(0, gyro_bias, 3)
     gyro_draw = r_gyro.normal(0, gyro_noise, (n, 3))
+    scale_g = gyro_scale * r_gyro.uniform(-1, 1, 3) if gyro_scale > 0 else np.zeros(3)
     if with_gyro:
-        gyro = omega + bias_g + gyro_draw
-    truth["gyro_bias"] = bias_g
+        gyro = (1.0 + scale_g) * omega + bias_g + gyro_draw
+    truth["gyro_bias"], truth["gyro_scale"] = bias_g, scale_g
     temp = None if temp_true is None else temp_true + 0.02 * temp_draw
     meta = {"sensor": sensor, "motion": motion, "duration_s": duration_s, "rate_hz": rate_hz, "seed": seed,
             "unit": unit, "lsb": lsb, "scale": scale, "effect": effect, "magnitude": m,
             "effect_params": params, "noise": {"white": white, "colored": colored, "tau_s": noise_tau_s},
             "field_uT": field_uT, "inclination_deg": inclination_deg, "declination_deg": declination_deg,
             "g": G0, "tilt_deg": tilt_deg, "band_deg": band_deg, "rest_s": rest_s, "move_s": move_s,
-            "soft_iron": soft_iron, "jitter_s": jitter_s}
+            "soft_iron": soft_iron, "jitter_s": jitter_s, "gyro_scale": gyro_scale}
     return {"t": t, "xyz": xyz, "gyro": gyro, "temp": temp, "truth": truth, "meta": meta}
 
 

@@ -135,3 +135,14 @@ def test_csv_round_trip(tmp_path):
     rec2 = gen.generate("accel", "static", 2.0, 20.0, seed=11, with_gyro=False)
     gen.write_csv(path, rec2)
     assert path.read_text().splitlines()[0] == "t,x,y,z"
+
+
+def test_gyro_scale_error_scales_the_rates_and_leaves_the_rest():
+    a = gen.generate("mag", "ground", 10.0, 50.0, seed=12)
+    b = gen.generate("mag", "ground", 10.0, 50.0, seed=12, gyro_scale=0.03)
+    np.testing.assert_array_equal(a["xyz"], b["xyz"])
+    np.testing.assert_array_equal(a["truth"]["gyro_bias"], b["truth"]["gyro_bias"])
+    assert np.all(a["truth"]["gyro_scale"] == 0.0)
+    k = b["truth"]["gyro_scale"]
+    assert np.all(np.abs(k) <= 0.03) and np.any(np.abs(k) > 1e-3)
+    np.testing.assert_allclose(b["gyro"] - a["gyro"], k * b["truth"]["omega"], atol=1e-15)

@@ -10,7 +10,14 @@ from ros_margcal import Calibration
 from ros_margcal.model.errors import InputError
 from ros_margcal.model.fitting_core import pack, unpack
 from ros_margcal.model.fitting_prior import NAMES
-from ros_margcal.model.heading import _heading_gradient, attitudes, heading_p95, heading_std_deg
+from ros_margcal.model.heading import (
+    _heading_gradient,
+    attitudes,
+    heading_gradient,
+    heading_p95,
+    heading_p95_typical,
+    heading_std_deg,
+)
 
 
 def _cal(n: float = 48e-6) -> Calibration:
@@ -80,3 +87,54 @@ def test_the_analytic_heading_gradient_is_the_finite_difference_one() -> None:
         want[:, k] = ((d + np.pi) % (2 * np.pi) - np.pi) / (2 * e[k])
     got = _heading_gradient(w, raw - b, rot)
     np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-6 * np.abs(want).max())
+
+
+def test_the_typical_figure_is_the_median_of_the_measured_p95_under_the_covariance() -> None:
+    """Errors drawn from the covariance (an independent generator and far more draws than the figure's own)
+    measure a p95 whose median is the typical figure, at level and at 30 deg; the bound is above it."""
+    cal = _cal()
+    rng = np.random.default_rng(11)
+    for tilt in (0.0, 30.0):
+        grad = heading_gradient(cal, attitudes(tilt), inclination=60.0)
+        delta = rng.multivariate_normal(np.zeros(9), cal.covariance, size=4000)
+        measured = np.percentile(np.abs(delta @ grad.T), 95, axis=1)
+        typical = heading_p95_typical(cal, tilt_deg=tilt)
+        assert typical == pytest.approx(float(np.median(measured)), rel=0.08)
+        assert 0.42 < float(np.mean(measured <= typical)) < 0.58
+        assert heading_p95(cal, tilt_deg=tilt) > typical
+
+
+def test_one_error_direction_puts_the_bound_at_about_three_times_the_typical_figure() -> None:
+    """Only b_x uncertain: the measured p95 is |z| times a fixed figure, so bound / typical = 1.96 / 0.674."""
+    n = 48e-6
+    cov = np.zeros((9, 9))
+    cov[0, 0] = (0.01 * n) ** 2
+    cal = Calibration(np.zeros(3), np.eye(3), norm=n, covariance=cov, parameter_names=NAMES)
+    ratio = heading_p95(cal, tilt_deg=0.0) / heading_p95_typical(cal, tilt_deg=0.0)
+    assert ratio == pytest.approx(1.96 / 0.6745, rel=0.1)
+
+
+def test_the_typical_figure_is_deterministic_and_scales_with_the_error() -> None:
+    """Fixed draws: the same figure every call, four times the covariance gives twice the figure; a covariance
+    with a NaN gives NaN; no covariance is refused."""
+    cal = _cal()
+    a, b = heading_p95_typical(cal, tilt_deg=30.0), heading_p95_typical(cal, tilt_deg=30.0)
+    assert a == b
+    assert heading_p95_typical(cal.replace(covariance=4.0 * cal.covariance), tilt_deg=30.0) == pytest.approx(2 * a, rel=1e-9)
+    bad = np.array(cal.covariance)
+    bad[2, 2] = np.nan
+    assert np.isnan(heading_p95_typical(cal.replace(covariance=bad), tilt_deg=0.0))
+    with pytest.raises(InputError):
+        heading_p95_typical(Calibration.identity(48e-6))
+
+
+def test_the_typical_figure_takes_numpys_percentile_rule() -> None:
+    """The partition shortcut is ``np.percentile``'s linear rule on the module's fixed draws."""
+    from ros_margcal.model import heading
+
+    cal = _cal()
+    lam, vec = np.linalg.eigh(np.asarray(cal.covariance))
+    for tilt in (0.0, 30.0):
+        grad = heading_gradient(cal, attitudes(tilt), inclination=60.0)
+        errors = np.abs(heading._TYPICAL_Z @ (grad @ (vec * np.sqrt(np.clip(lam, 0.0, None)))).T)
+        assert heading_p95_typical(cal, tilt_deg=tilt) == pytest.approx(float(np.median(np.percentile(errors, 95, axis=1))), rel=1e-12)

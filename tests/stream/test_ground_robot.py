@@ -67,7 +67,10 @@ def test_a_ground_robot_gets_a_partial_calibration_with_its_heading_error(ground
     assert st.partial and "w_zz" in st.prior_parameters  # 5 deg of tilt: the vertical gain stays at the prior
     assert st.heading_p95_level_deg is not None and st.heading_p95_tilt30_deg is not None
     assert 0.0 < st.heading_p95_level_deg <= st.heading_p95_tilt30_deg
-    assert "heading p95" in st.message and "updated" in st.message
+    assert st.heading_typical_level_deg is not None and st.heading_typical_tilt30_deg is not None
+    assert 0.0 < st.heading_typical_level_deg < st.heading_p95_level_deg  # the median of what the bound bounds
+    assert 0.0 < st.heading_typical_tilt30_deg < st.heading_p95_tilt30_deg
+    assert "heading p95" in st.message and "typical" in st.message and "updated" in st.message
     # every published calibration within 5 deg level (this seed: 0.7-1.6 deg); the prediction within a factor 2
     c = cal.calibration
     measured = [gen.heading_p95(e.calibration.matrix, e.calibration.offset, tr, 0.0) for e in events]
@@ -82,9 +85,12 @@ def test_a_ground_robot_gets_a_partial_calibration_with_its_heading_error(ground
     assert values["prior_parameters"].split() == list(st.prior_parameters)
     assert float(values["heading_p95_level_deg"]) == pytest.approx(st.heading_p95_level_deg, rel=1e-2)
     assert float(values["heading_p95_tilt30_deg"]) == pytest.approx(st.heading_p95_tilt30_deg, rel=1e-2)
+    assert float(values["heading_typical_level_deg"]) == pytest.approx(st.heading_typical_level_deg, rel=1e-2)
+    assert float(values["heading_typical_tilt30_deg"]) == pytest.approx(st.heading_typical_tilt30_deg, rel=1e-2)
     assert values["partial"] in ("true", "false")
     d = st.to_dict()
     assert d["updated_parameters"] == list(st.updated_parameters) and d["heading_p95_level_deg"] == st.heading_p95_level_deg
+    assert d["heading_typical_tilt30_deg"] == st.heading_typical_tilt30_deg
 
 
 def test_without_the_partial_path_a_ground_robot_never_calibrates(ground: dict[str, Any]) -> None:
@@ -167,8 +173,10 @@ def test_replay_prints_the_heading_error_and_the_partial_parameters(ground: dict
     args = parser.parse_args(["replay", str(csv), "--sensor", "mag", "-q", "--json", str(out_json)])
     assert args.func(args) == 0
     text = capsys.readouterr().out
-    assert "heading error (predicted p95):" in text and "deg level" in text
+    assert "heading error (predicted p95, 95 % bound):" in text and "deg level" in text
+    assert "heading error (predicted p95, typical):" in text
     assert "partial calibration (data tilted up to" in text and "from the prior: w_zz" in text
     doc = json.loads(out_json.read_text())["sensors"]["mag"]
     assert doc["heading_p95_deg"]["level"] > 0 and "w_zz" in doc["partial"]["from_prior"]
+    assert 0 < doc["heading_typical_deg"]["level"] < doc["heading_p95_deg"]["level"]
     assert doc["status"]["partial"] is True
