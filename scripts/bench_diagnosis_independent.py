@@ -11,6 +11,13 @@ truth label is the generator's effect mapped to what a correct diagnosis names:
 - ``misalignment`` -> ``none`` (a rotation of the sensor axes is invisible to magnitudes),
 - the others by name (``quantization``, ``saturation``, ``nonlinearity``, ``hard_iron_jump``, ``none``).
 
+With ``--shape-tolerance F`` the diagnosis counts a sensor shape (root sum of squares of the three cross-axis
+terms of the symmetric W, relative to its diagonal) up to F as the sensor's own. The generator's draws do not
+know F: a soft-iron case may end with a total shape within F (its added matrix partly cancels the sensor's own),
+and a baseline sensor may exceed it. Where the generated sensor's shape (``true_shape``, from the generator's
+truth, never from the diagnosis) and the label disagree, both ``none`` and ``ellipsoid_shape`` count (the
+*accepted* answers); the strict score, the label alone, is printed beside it.
+
 Split: the *tuning* cases (seeds 1-3, magnitude factor 1) are the only ones looked at while tuning;
 the *held-out* cases (seeds 101-102, magnitude factors 0.6 and 1.6 of the generator's default) are only
 reported; they were reported once before issue 15's second round was tuned, so that round adds a
@@ -21,7 +28,9 @@ held-out set (seeds 501-503, factors 0.75 and 1.4), run once, with ``--part all`
 tuning (on the tuning cases only) was frozen. That round's change (a band twin's slow noise) raised the
 tuning part from 90.7 to 94.4 % but not the held-out ones (final 87.0 %; the earlier held-out parts 127 ->
 125 of 144), so it was not kept; the final part was then run once on the diagnosis without it: 87.0 % too.
-``--part tune|held|fresh|new|final|all``. Prints the
+The fifth round (no tuning of the diagnosis; the scoring of shapes within the tolerance above) adds a *last*
+held-out set (seeds 901-903, factors 0.65 and 1.5), run once with ``--part all``.
+``--part tune|held|fresh|new|final|last|all``. Prints the
 top-1 of each part, the confusion matrix (also ``confusion_independent.png``), tracebacks (must be 0) and
 the time per diagnosis.
 
@@ -64,8 +73,10 @@ NEW_SEEDS = (401, 402, 403)
 NEW_FACTORS = (0.7, 1.45)
 FINAL_SEEDS = (501, 502, 503)
 FINAL_FACTORS = (0.75, 1.4)
+LAST_SEEDS = (901, 902, 903)
+LAST_FACTORS = (0.65, 1.5)
 SPLITS = {"tune": (TUNE_SEEDS, TUNE_FACTORS), "held": (HELD_SEEDS, HELD_FACTORS), "fresh": (FRESH_SEEDS, FRESH_FACTORS),
-          "new": (NEW_SEEDS, NEW_FACTORS), "final": (FINAL_SEEDS, FINAL_FACTORS)}
+          "new": (NEW_SEEDS, NEW_FACTORS), "final": (FINAL_SEEDS, FINAL_FACTORS), "last": (LAST_SEEDS, LAST_FACTORS)}
 """part -> (seeds, magnitude factors of the generator's default)."""
 
 
@@ -93,12 +104,33 @@ def jobs(part: str, duration: float) -> list[tuple[str, str, float, str, int, fl
     return out
 
 
+def true_shape(w_sym: np.ndarray) -> float:
+    """The sensor shape the diagnosis's tolerance is about: root sum of squares of the three cross-axis terms of
+    the symmetric ``W`` scaled by its diagonal (``diagnosis.baseline_noise.shaped_truth``'s definition)."""
+    w = np.asarray(w_sym, dtype=float)
+    d = np.sqrt(np.abs(np.diag(w)))
+    c = w / np.outer(d, d)
+    return float(np.sqrt(np.sum(np.triu(0.5 * (c + c.T), 1) ** 2)))
+
+
+def accepted(label: str, shape: float, tolerance: float) -> list[str]:
+    """The answers that count: the label; with a shape tolerance, also ``none`` for a shape-effect case whose
+    generated shape is within it, and ``ellipsoid_shape`` for a shape-free case whose sensor exceeds it."""
+    if tolerance > 0 and label == "ellipsoid_shape" and shape <= tolerance:
+        return [label, "none"]
+    if tolerance > 0 and label == "none" and shape > tolerance:
+        return [label, "ellipsoid_shape"]
+    return [label]
+
+
 def case(job: tuple[str, str, float, str, int, float]) -> dict[str, Any]:
     """Generate, write, read back and diagnose one case; never raises."""
     part, effect, magnitude, motion, seed, duration = job
     row: dict[str, Any] = {"part": part, "effect": effect, "magnitude": magnitude, "motion": motion, "seed": seed,
                            "truth": LABEL[effect]}
     rec = GEN.generate("mag", motion, duration, 50.0, seed, effect=effect, magnitude=magnitude)
+    row["true_shape"] = true_shape(rec["truth"]["W_sym"])
+    row["accepted"] = accepted(row["truth"], row["true_shape"], SHAPE_TOLERANCE)
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "case.csv"
         GEN.write_csv(path, rec)
@@ -149,15 +181,20 @@ def timing(quick: bool) -> dict[str, float]:
     return out
 
 
+def _hit(r: dict[str, Any]) -> bool:
+    return r["cause"] in r.get("accepted", [r["truth"]])
+
+
 def _summary(rows: list[dict[str, Any]], name: str) -> str:
     if not rows:
         return f"{name}: no cases"
-    hit = [r["cause"] == r["truth"] for r in rows]
+    hit = [_hit(r) for r in rows]
+    strict = [r["cause"] == r["truth"] for r in rows]
     eff = [r for r in rows if r["truth"] != "none"]
     none = [r for r in rows if r["truth"] == "none"]
-    return (f"{name}: top-1 {100 * np.mean(hit):.1f} % ({sum(hit)}/{len(hit)}), effects "
-            f"{100 * np.mean([r['cause'] == r['truth'] for r in eff]) if eff else 0:.1f} %, none/unobservable "
-            f"{100 * np.mean([r['cause'] == 'none' for r in none]) if none else 0:.1f} %, "
+    return (f"{name}: top-1 {100 * np.mean(hit):.1f} % ({sum(hit)}/{len(hit)}; strict labels {100 * np.mean(strict):.1f} %, "
+            f"{sum(strict)}/{len(strict)}), effects {100 * np.mean([_hit(r) for r in eff]) if eff else 0:.1f} %, "
+            f"none/unobservable {100 * np.mean([r['cause'] == 'none' for r in none]) if none else 0:.1f} %, "
             f"tracebacks {sum(r['cause'] == 'traceback' for r in rows)}")
 
 
@@ -176,6 +213,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--timing", action="store_true",
                    help="only time one 60 s / 50 Hz and one 5 min / 100 Hz diagnosis with the other core kept busy")
     p.add_argument("--quick", action="store_true", help="with --timing: time margcal diagnose --quick")
+    p.add_argument("--rescore", action="store_true",
+                   help="no diagnosis: score the cases of OUT/rows.jsonl again (their diagnoses as saved) at --shape-tolerance")
     args = p.parse_args(argv)
     if args.timing:
         for name, secs in timing(args.quick).items():
@@ -189,8 +228,10 @@ def main(argv: list[str] | None = None) -> int:
         todo = [j for j in todo if j[1] in args.effects.split(",")]
     if args.motions:
         todo = [j for j in todo if j[3] in args.motions.split(",")]
-    rows: list[dict[str, Any]] = []
     log = args.out / "rows.jsonl"
+    if args.rescore:
+        return report(rescore(log, args.shape_tolerance), args.out, args.duration, 0.0)
+    rows: list[dict[str, Any]] = []
     log.unlink(missing_ok=True)
     t0 = time.monotonic()
     with multiprocessing.get_context("fork").Pool(max(1, args.jobs)) as pool:
@@ -199,9 +240,36 @@ def main(argv: list[str] | None = None) -> int:
             with log.open("a") as fh:
                 fh.write(json.dumps(r, default=str) + "\n")
             print(f"{r['part']:5s} {r['effect']:15s} {r['magnitude']:7.4g} {r['motion']:7s} {r['seed']:4d} -> "
-                  f"{r['cause']:16s} ({'ok' if r['cause'] == r['truth'] else 'MISS, want ' + r['truth']}) "
+                  f"{r['cause']:16s} ({'ok' if _hit(r) else 'MISS, want ' + '|'.join(r['accepted'])}) "
+                  f"shape {r['true_shape']:.3f} "
                   f"{r['seconds']:5.1f} s  {r['where'][:60]}  "
                   + "  ".join(f"{n} {100 * x:.0f}" for n, x, _ in r.get("ranking", [])), flush=True)
+    return report(rows, args.out, args.duration, time.monotonic() - t0)
+
+
+def rescore(log: Path, tolerance: float) -> list[dict[str, Any]]:
+    """The saved cases of a run (``rows.jsonl``), their accepted answers recomputed at ``tolerance`` from the
+    generator's truth (the shape is regenerated when the run predates it)."""
+    if not log.is_file():
+        sys.exit(f"no saved run at {log}: run the benchmark with --out first")
+    rows = []
+    for line in log.read_text().splitlines():
+        r = json.loads(line)
+        if "true_shape" not in r:
+            rec = GEN.generate("mag", r["motion"], 1.0, 50.0, r["seed"], effect=r["effect"], magnitude=r["magnitude"])
+            r["true_shape"] = true_shape(rec["truth"]["W_sym"])
+        r["accepted"] = accepted(r["truth"], r["true_shape"], tolerance)
+        rows.append(r)
+    return rows
+
+
+def _row_label(r: dict[str, Any]) -> str:
+    """The confusion matrix's row: the label, marked when its generated shape makes a second answer right too."""
+    return r["truth"] if len(r.get("accepted", ())) < 2 else f"{r['truth']} (shape {'<=' if r['truth'] != 'none' else '>'} tol)"
+
+
+def report(rows: list[dict[str, Any]], out: Path, duration: float, seconds: float) -> int:
+    """Print the scores per part and motion, the confusion matrix (and its PNG) and the times; the exit code."""
     rows.sort(key=lambda r: (r["part"], r["effect"], r["motion"], r["seed"]))
     for part, (seeds, factors) in SPLITS.items():
         sel = [r for r in rows if r["part"] == part]
@@ -211,17 +279,20 @@ def main(argv: list[str] | None = None) -> int:
         sel = [r for r in rows if r["motion"] == motion]
         if sel:
             print(_summary(sel, f"motion {motion}"))
+    held = [r for r in rows if r["part"] != "tune"]
+    if held and len(held) < len(rows):
+        print(_summary(held, "held-out parts together"))
     print(_summary(rows, "all"))
-    table, png = _confusion_plot([r["truth"] for r in rows], [r["cause"] for r in rows], args.out,
+    table, png = _confusion_plot([_row_label(r) for r in rows], [r["cause"] for r in rows], out,
                                  "confusion_independent.png", "generator effect (correct cause)")
     print("confusion matrix (rows: truth, columns: diagnosed)\n" + table + f"\n(also {png})")
     secs = [r["seconds"] for r in rows]
     print(f"time per diagnosis: median {np.median(secs):.1f} s, max {np.max(secs):.1f} s ({len(rows)} cases of "
-          f"{args.duration:.0f} s at 50 Hz, {time.monotonic() - t0:.0f} s in all)")
+          f"{duration:.0f} s at 50 Hz, {seconds:.0f} s in all)")
     for r in rows:
         if r["cause"] == "traceback":
             print(f"\nTRACEBACK {r['effect']} {r['motion']} {r['seed']}:\n{r['traceback']}", file=sys.stderr)
-    ok = all(r["cause"] != "traceback" for r in rows) and np.mean([r["cause"] == r["truth"] for r in rows]) >= 0.9
+    ok = all(r["cause"] != "traceback" for r in rows) and np.mean([_hit(r) for r in rows]) >= 0.9
     return 0 if ok else 1
 
 
