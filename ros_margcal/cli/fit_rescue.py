@@ -33,7 +33,7 @@ from ..model.calibration import Calibration
 from ..model.errors import ConvergenceError, DegenerateDataError, InputError
 from ..model.fitting import fit
 from ..model.fitting_prior import PriorFit, broad_prior, fit_with_prior
-from ..model.heading import heading_p95
+from ..model.heading import heading_p95, heading_p95_typical
 from ..stream.config import STATIC_SPREAD, PipelineConfig, plausibility, relative_spread
 
 __all__ = ["STATIC_SPREAD", "Part", "Rescue", "check", "config_for", "heading_text", "rescue"]
@@ -254,10 +254,14 @@ def _change(t: Array | None, pts: Array, failure: str, *, model: str, norm: floa
 
 
 def heading_text(cal: Calibration) -> str:
-    """Predicted heading error p95 from the covariance, level and at 30° tilt (60° inclination), or ""."""
+    """Predicted heading error p95 from the covariance, level and at 30° tilt (60° inclination), as the 95 % bound
+    and the typical figure (``heading.heading_p95_typical``), or ""."""
     try:
         level = heading_p95(cal, tilt_deg=0.0, inclination=60.0)
         tilt = heading_p95(cal, tilt_deg=30.0, inclination=60.0)
+        typ_level = heading_p95_typical(cal, tilt_deg=0.0, inclination=60.0)
+        typ_tilt = heading_p95_typical(cal, tilt_deg=30.0, inclination=60.0)
     except (InputError, ValueError, np.linalg.LinAlgError):
         return ""
-    return f"predicted heading error p95: {level:.2g} deg level, {tilt:.2g} deg at 30 deg tilt (60 deg inclination)"
+    return (f"predicted heading error p95: {level:.2g} deg level, {tilt:.2g} deg at 30 deg tilt (95 % bound; typical "
+            f"{typ_level:.2g} / {typ_tilt:.2g} deg; 60 deg inclination)")

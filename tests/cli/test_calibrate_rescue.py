@@ -50,6 +50,7 @@ def test_partial_coverage_is_fitted_with_the_prior_and_says_which_parameters(
     assert rc == 0
     assert "requested fit: lm did not converge" in text and "partial coverage" in text
     assert "updated by the data:" in text and "from the prior:" in text and "predicted heading error p95" in text
+    assert "95 % bound; typical" in text
     d = json.loads(out.read_text())
     assert d["diagnosis"] == "partial" and d["from_prior"] and d["updated"]
     assert {"b_x", "b_y"} <= set(d["updated"])
