@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 
 from .stages import rest_noise
 
-__all__ = ["MIN_DROP", "MIN_SHARED_DROP", "OffsetChange", "locate_offset_change", "moving_mask"]
+__all__ = ["MIN_DROP", "MIN_SHARED_DROP", "OffsetChange", "locate_offset_change", "moving_mask", "step_evidence"]
 
 log = logging.getLogger(__name__)
 
@@ -178,3 +178,18 @@ def _shared_rss(x: Array, y: Array, k: int) -> float:
     coef, *_ = np.linalg.lstsq(xs, y, rcond=None)
     res = y - xs @ coef
     return float(res @ res)
+
+
+def step_evidence(t: Array, raw: Array, noise: float | None = None) -> float:
+    """How well one offset step explains ``raw`` (n, 3): the share of the single ellipsoid fit's residual
+    sum of squares that the best split with one shape and two centres removes (``shared_drop`` of
+    ``locate_offset_change`` without thresholds); 0 when no split can be evaluated.
+
+    An offset step leaves two flat stretches: the split removes all of the change and only the noise is
+    left (a share removed near 1). A random walk or a warm-up keeps changing on either side of any one
+    split, and bursts are no step at all: much is left (about 0.2-0.7 removed). The value depends on how
+    large the change is against the noise, so a recording is compared with twins of each candidate effect
+    at its fitted size (``ranking.separate_step_from_walk``), never with a fixed level.
+    """
+    c = locate_offset_change(t, raw, noise=noise, min_drop=0.0, min_shared_drop=0.0)
+    return 0.0 if c is None else float(min(max(c.shared_drop, 0.0), 1.0))

@@ -19,7 +19,10 @@ observable effect of the registry (``ranking.rank_effects``) and decides:
 A recording that no single calibration fits because its offset steps (a magnet attached in
 mid-recording) gets its twin from the fit of one side of the step (``twin.Twin.change``,
 ``Diagnosis.offset_change``), so the ranking can name ``hard_iron_jump``; the located step ranks
-``hard_iron_jump`` first when it removes within ``CHANGE_MARGIN`` of the top effect's share.
+``hard_iron_jump`` first when it removes within ``CHANGE_MARGIN`` of the top effect's share. Whether the offset
+stepped once or drifted (``hard_iron_jump`` against ``STEP_RIVALS`` and the drift group, shrinks within
+``ranking.STEP_MARGIN``) is then decided on how well one split explains the recording against the twins of the
+two (``ranking.separate_step_from_walk``): on a band of tilts the shrinks of the two do not tell them apart.
 
 ``diagnose_holdout`` fits on the first part of a recording and measures the shrink on the rest.
 ``validator_downstream`` adds the validator's view.
@@ -40,7 +43,17 @@ from numpy.typing import NDArray
 from ..model.errors import ConfigError, InputError
 from ..sim.simulation import EFFECTS
 from .downstream import N_SET, compare_validators
-from .ranking import EffectFit, applicable_effects, effective_group, equivalent_groups, gap_with, overall_gap, rank_effects
+from .ranking import (
+    DRIFT_GROUP,
+    EffectFit,
+    applicable_effects,
+    effective_group,
+    equivalent_groups,
+    gap_with,
+    overall_gap,
+    rank_effects,
+    separate_step_from_walk,
+)
 from .stages import clipped_shares, stage_gaps
 from .twin import DEFAULT_N_FIT, FIT_ERRORS, Baseline, Twin, build_twin, mean_features
 from .twin_fits import MIN_SAMPLES
@@ -71,6 +84,9 @@ JUMP_EFFECT = "hard_iron_jump"
 """The registry effect a located offset step stands for."""
 CHANGE_MARGIN = 0.05
 """Shrink margin within which ``JUMP_EFFECT`` is ranked first on a recording with a located offset step."""
+STEP_RIVALS = ("bias_drift", "disturbance")
+"""Effects whose offset changes in time otherwise than by one step (with the drift group, ``ranking.DRIFT_GROUP``):
+weighed against ``JUMP_EFFECT`` on the offset's time course (``ranking.separate_step_from_walk``)."""
 
 
 @dataclass
@@ -263,6 +279,9 @@ def diagnose(
     group_of = {e.name: effective_group(e, has_temp) for e in observable}
     for f in fits:
         f.group = group_of[f.name]
+    # one offset step against an offset that changes otherwise: decided on the offset's time course
+    rivals = frozenset(n for n, g in group_of.items() if g == DRIFT_GROUP or n in STEP_RIVALS)
+    fits = separate_step_from_walk(twin, fits, base.seeds, rivals)
     where = max(before, key=lambda k: before[k]) if before else ""
     best = fits[0] if fits else None
     top = max(before.values(), default=0.0)

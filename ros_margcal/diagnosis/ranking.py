@@ -19,7 +19,10 @@ within ``CLOSE_MARGIN`` of the top one's is then weighed against it on the featu
 their twins only (``separate_close_calls``): a time effect has to beat a static one, or a drift a
 temperature effect, on the evidence that tells them apart, not on the size both reproduce. The top
 effect's magnitude is finally re-fitted on those seeds (``_refine_magnitude``), since the search's few
-seeds are the same for every recording.
+seeds are the same for every recording. One offset step (``hard_iron_jump``) against an offset that changes
+otherwise (a drift, bursts) is decided on the offset's time course (``separate_step_from_walk``, called by
+``core.diagnose`` once the groups are known): how much of the residual one split explains, on the recording
+against the twins of each.
 
 Effects with ``observable=False`` (misalignment) cannot change a norm-based recording and are not
 fitted but listed as unobservable; effects sharing a ``group`` (non-orthogonality and symmetric soft
@@ -37,12 +40,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..sim.simulation import EFFECTS, Effect
+from .changes import step_evidence
 from .stages import stage_floor, stage_gaps
 from .twin import FIT_ERRORS, Baseline, Twin, mean_features
 
 __all__ = [
-    "CLOSE_MARGIN", "DRIFT_GROUP", "PLAIN_GROUPS", "EffectFit", "applicable_effects", "effective_group", "equivalent_groups",
-    "fit_effect", "gap_with", "overall_gap", "rank_effects", "separate_close_calls"
+    "CLOSE_MARGIN", "DRIFT_GROUP", "PLAIN_GROUPS", "STEP_EFFECT", "STEP_MARGIN", "EffectFit", "applicable_effects",
+    "effective_group", "equivalent_groups", "fit_effect", "gap_with", "overall_gap", "rank_effects", "separate_close_calls",
+    "separate_step_from_walk"
 ]
 
 log = logging.getLogger(__name__)
@@ -66,6 +71,15 @@ non-linearity, which on a band of directions an ellipsoid mimics) is named over 
 DRIFT_GROUP = "slow_drift"
 """Group of ``bias_drift`` and ``temperature`` on a recording without a temperature column."""
 _DRIFT_MEMBERS = ("bias_drift", "temperature")
+STEP_EFFECT = "hard_iron_jump"
+"""The effect whose offset steps once (``separate_step_from_walk``)."""
+STEP_MARGIN = 0.15
+"""Shrink margin within which ``STEP_EFFECT`` and an offset that changes otherwise (a drift, bursts) are weighed on
+the step evidence (``separate_step_from_walk``). Wider than ``CLOSE_MARGIN``: on part of the sphere (a band of
+tilts) the shrinks of these effects are measured on the search's few seeds only and move by about this much with
+the draws of the effect's direction and time."""
+_STEP_FLOOR = 0.05  # spread floor of the step evidence, decades of the share one split leaves
+_MIN_LEFT = 1e-4  # smallest share one split leaves (a noise-free step)
 
 
 
@@ -306,6 +320,62 @@ def separate_close_calls(twin: Twin, fits: list[EffectFit], seeds: tuple[int, ..
             log.debug("close call: %s before %s, no feature separates them (the plainer model)", other.name, top.name)
             return [other, *fits[:i], *fits[i + 1:]]
     return fits
+
+
+def separate_step_from_walk(twin: Twin, fits: list[EffectFit], seeds: tuple[int, ...], rivals: set[str] | frozenset[str],
+                            *, margin: float = STEP_MARGIN) -> list[EffectFit]:
+    """Order ``STEP_EFFECT`` (one offset step) against a rival whose offset changes otherwise (``rivals``: a
+    random-walk drift, a warm-up without its temperature column, bursts) when one of the two leads and the
+    other's shrink is within ``margin`` of it, by the time course of the offset.
+
+    A step leaves two flat stretches, a drift keeps moving: the step evidence (``changes.step_evidence``, the
+    share of the single ellipsoid fit's residual that one split with one shape and two centres removes) of
+    the recording is put against that of the twins of each of the two effects at its fitted magnitude on
+    ``seeds``, as ``log10`` of the share the split leaves, each on its twins' own spread (floored by
+    ``_STEP_FLOOR``). The order by shrink stands unless the top effect's twins reject the recording (``|z| >
+    _SEPARATED``) while the other's do not: a small effect buried in the noise leaves both twins alike, and
+    then the time course does not decide. The size of the gap both reproduce does not decide either, nor the
+    features the effect's random direction sets on part of the sphere.
+    """
+    if len(fits) < 2 or fits[0].magnitude <= 0:
+        return fits
+    top = fits[0]
+    if top.name == STEP_EFFECT:
+        wanted = lambda f: f.name in rivals  # noqa: E731
+    elif top.name in rivals:
+        wanted = lambda f: f.name == STEP_EFFECT  # noqa: E731
+    else:
+        return fits
+    i = next((k for k, f in enumerate(fits[1:], start=1)
+              if wanted(f) and f.magnitude > 0 and f.shrink >= top.shrink - margin), None)
+    if i is None:
+        return fits
+    other = fits[i]
+    ts, sub = twin.t[twin.sub], twin.sub
+    rec = _share_left(step_evidence(ts, twin.raw[sub]))
+    z = []
+    for f in (top, other):
+        vals = []
+        for s in seeds:
+            try:
+                vals.append(_share_left(step_evidence(ts, twin.simulate_raw({f.name: f.magnitude}, s)[sub])))
+            except FIT_ERRORS as exc:
+                log.debug("step evidence of %s, seed %d: %s", f.name, s, exc)
+        if len(vals) < 2:
+            return fits
+        mean, spread = float(np.mean(vals)), max(float(np.std(vals, ddof=1)), _STEP_FLOOR)
+        z.append((rec - mean) / spread)
+        log.debug("step evidence: recording %.3f, %s twins %.3f +- %.3f (z %.2f)", rec, f.name, mean, spread, z[-1])
+    if abs(z[0]) > _SEPARATED and abs(z[1]) <= _SEPARATED:
+        log.debug("step against walk: %s before %s", other.name, top.name)
+        return [other, *fits[:i], *fits[i + 1:]]
+    return fits
+
+
+def _share_left(shared_drop: float) -> float:
+    """``log10`` of the share of the residual sum of squares one split leaves (a ratio of sums of squares:
+    its spread over twins is multiplicative)."""
+    return math.log10(max(1.0 - shared_drop, _MIN_LEFT))
 
 
 def _refine_magnitude(twin: Twin, base: Baseline, f: EffectFit, seeds: tuple[int, ...]) -> None:

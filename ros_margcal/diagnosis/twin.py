@@ -174,6 +174,20 @@ class Twin:
         hit = self._cache.get(key)
         if hit is not None:
             return hit
+        raw = self.simulate_raw(dict(key[0]), seed)
+        out = stage_features(self.t, raw, self.temp, self.sub, validator=self.validator, norm=self.norm,
+                             skip=frozenset(self.skipped), closed_form=self.closed_form)
+        self._cache[key] = out
+        return out
+
+    def simulate_raw(self, effects: dict[str, float] | None, seed: int) -> Array:
+        """Raw readings (n, 3) of the twin simulated with ``effects`` on ``np.random.default_rng(seed)``
+        (what ``features`` measures).
+
+        Raises:
+            InputError: the simulation gives non-finite readings.
+        """
+        key = (tuple(sorted((k, float(v)) for k, v in (effects or {}).items() if v > 0)), int(seed))
         rng = np.random.default_rng(seed)
         noise = self.noise
         lsb = dict(key[0]).get("quantization", 0.0)
@@ -193,10 +207,7 @@ class Twin:
         if not np.isfinite(raw).all():
             msg = f"the simulator produced non-finite readings for effects {dict(key[0])}"
             raise InputError(msg)
-        out = stage_features(self.t, raw, self.temp, self.sub, validator=self.validator, norm=self.norm,
-                             skip=frozenset(self.skipped), closed_form=self.closed_form)
-        self._cache[key] = out
-        return out
+        return np.asarray(raw, dtype=np.float64)
 
     def try_features(self, effects: dict[str, float] | None, seed: int) -> StageFeatures | None:
         """``features``, or None when the twin with these effects cannot be fitted (a strong effect)."""

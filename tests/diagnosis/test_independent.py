@@ -14,10 +14,19 @@ import pytest
 
 from ros_margcal.diagnosis import diagnose, locate_offset_change, stage_gaps
 from ros_margcal.diagnosis.baseline_noise import ar1_noise, estimate_slow_noise, shaped_truth
+from ros_margcal.diagnosis.changes import step_evidence
 from ros_margcal.diagnosis.fit_checks import lm_diag, sym_fit
-from ros_margcal.diagnosis.ranking import PLAIN_GROUPS, EffectFit, gap_with, separate_close_calls
+from ros_margcal.diagnosis.ranking import (
+    CLOSE_MARGIN,
+    PLAIN_GROUPS,
+    STEP_MARGIN,
+    EffectFit,
+    gap_with,
+    separate_close_calls,
+    separate_step_from_walk,
+)
 from ros_margcal.diagnosis.stages import StageFeatures
-from ros_margcal.diagnosis.twin import build_twin, subsample
+from ros_margcal.diagnosis.twin import Twin, build_twin, subsample
 from ros_margcal.model.calibration import Calibration
 from ros_margcal.model.errors import ConvergenceError
 from ros_margcal.model.fitting import fit
@@ -237,3 +246,39 @@ def test_axis_clipped_throughout_is_saturation_without_a_twin(independent: Modul
     assert json.dumps(d.to_dict(), default=float)
     short, _ = _recording(independent, "none", duration=0.6)
     assert diagnose(short, sensor="mag", norm=norm, quick=True).cause == "unexplained"
+
+
+def _band_twin(gen: ModuleType, effect: str, magnitude: float, seed: int) -> Twin:
+    rec, norm = _recording(gen, effect, motion="band", duration=60.0, seed=seed, magnitude=magnitude)
+    return build_twin(rec.t, rec.raw, sensor="mag", norm=norm, shape_tolerance=0.05)
+
+
+def test_step_evidence_tells_a_step_from_a_random_walk(independent: ModuleType) -> None:
+    """On a band of tilts one split with one shape and two centres removes nearly all of an offset step's
+    residual and much less of a random walk's (its largest excursion a quarter of the step)."""
+    jump = _band_twin(independent, "hard_iron_jump", 0.28, 1102)
+    walk = _band_twin(independent, "bias_drift", 0.07, 1102)
+    e_jump = step_evidence(jump.t[jump.sub], jump.raw[jump.sub])
+    e_walk = step_evidence(walk.t[walk.sub], walk.raw[walk.sub])
+    assert e_jump > 0.9 > 0.7 > e_walk > 0.2
+    assert 0.0 <= e_walk < e_jump <= 1.0
+    assert step_evidence(np.arange(3.0), np.zeros((3, 3))) == 0.0  # nothing to split
+
+
+def test_step_against_walk_on_a_band(independent: ModuleType) -> None:
+    """The two confusions of a band of tilts, with the shrinks the search gave them: a random walk whose jump
+    twin closed more of the gap, and a step whose warm-up twin did. The offset's time course puts the right
+    effect first; outside ``STEP_MARGIN``, or against an effect that is no rival, the order stands."""
+    seeds = tuple(range(6))
+    rivals = frozenset({"bias_drift", "temperature", "disturbance"})
+    walk = _band_twin(independent, "bias_drift", 0.07, 1102)
+    fits = [_fit("hard_iron_jump", "hard_iron_jump", 0.81), _fit("temperature", "slow_drift", 0.71)]
+    fits[0].magnitude, fits[1].magnitude = 0.0212, 0.00135  # the magnitudes the search fitted
+    assert [f.name for f in separate_step_from_walk(walk, fits, seeds, rivals)] == ["temperature", "hard_iron_jump"]
+    assert separate_step_from_walk(walk, fits, seeds, rivals, margin=0.05)[0].name == "hard_iron_jump"
+    assert separate_step_from_walk(walk, fits, seeds, frozenset({"bias_drift"}))[0].name == "hard_iron_jump"
+    jump = _band_twin(independent, "hard_iron_jump", 0.28, 1102)
+    fits = [_fit("temperature", "slow_drift", 0.89), _fit("hard_iron_jump", "hard_iron_jump", 0.81)]
+    fits[0].magnitude, fits[1].magnitude = 0.0254, 1.0
+    assert separate_step_from_walk(jump, fits, seeds, rivals)[0].name == "hard_iron_jump"
+    assert STEP_MARGIN > CLOSE_MARGIN
