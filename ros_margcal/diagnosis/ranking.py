@@ -340,14 +340,9 @@ def separate_step_from_walk(twin: Twin, fits: list[EffectFit], seeds: tuple[int,
     if len(fits) < 2 or fits[0].magnitude <= 0:
         return fits
     top = fits[0]
-    if top.name == STEP_EFFECT:
-        wanted = lambda f: f.name in rivals  # noqa: E731
-    elif top.name in rivals:
-        wanted = lambda f: f.name == STEP_EFFECT  # noqa: E731
-    else:
-        return fits
+    wanted = rivals if top.name == STEP_EFFECT else {STEP_EFFECT} if top.name in rivals else set()
     i = next((k for k, f in enumerate(fits[1:], start=1)
-              if wanted(f) and f.magnitude > 0 and f.shrink >= top.shrink - margin), None)
+              if f.name in wanted and f.magnitude > 0 and f.shrink >= top.shrink - margin), None)
     if i is None:
         return fits
     other = fits[i]

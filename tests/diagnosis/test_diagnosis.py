@@ -464,10 +464,10 @@ def test_bench_subset_selects_effects_sensor_and_limit() -> None:
         _select(jobs, "gremlins", "", 0)
 
 
-def _band_readings(seed: int, cubic: float = 0.0, shape: float = 0.0, n: int = 3000) -> tuple[np.ndarray, float]:
+def _band_readings(seed: int, cubic: float = 0.0, shape: float = 0.0, n: int = 3000) -> np.ndarray:
     """Readings (raw units, field 48) along a band of tilts (+-20 deg about the vertical, yaw turning), an
     offset of 30, a symmetric ``shape`` (cross-axis terms), white noise 0.1 and a cubic ``k_i v_i^3 / 48^2``
-    of the whole reading with |k_i| = ``cubic``; and the white noise as a fraction of the field."""
+    of the whole reading with |k_i| = ``cubic``."""
     rng = np.random.default_rng(seed)
     t = np.linspace(0.0, 60.0, n)
     yaw = 0.35 * t + rng.uniform(0, 2 * np.pi)
@@ -476,8 +476,7 @@ def _band_readings(seed: int, cubic: float = 0.0, shape: float = 0.0, n: int = 3
     d = np.column_stack([np.cos(inc) * np.cos(yaw), np.cos(inc) * np.sin(yaw), np.sin(inc)])
     m = np.eye(3) + shape * np.array([[0.0, 1.0, -0.5], [1.0, 0.0, 0.7], [-0.5, 0.7, 0.0]])
     v = 30.0 * np.array([0.6, -0.64, 0.48]) + 48.0 * d @ m.T + 0.1 * rng.normal(size=(n, 3))
-    v = v + cubic * np.array([1.0, -0.8, 0.6]) * v**3 / 48.0**2
-    return v, 0.1 / 48.0
+    return v + cubic * np.array([1.0, -0.8, 0.6]) * v**3 / 48.0**2
 
 
 @pytest.mark.parametrize("seed", [1, 2, 3])
@@ -489,14 +488,14 @@ def test_cubic_feature_sees_a_band_non_linearity_and_not_noise_or_shape(seed: in
     from ros_margcal.diagnosis.stages import _cubic_feature
     from ros_margcal.model.fitting import fit
 
-    def feature(v: np.ndarray, _noise: float) -> float:
+    def feature(v: np.ndarray) -> float:
         cal = sym_fit(v, 48.0, closed_form=False) or fit(v, model="sym", method="lin_auto", norm=48.0)
         return _cubic_feature(v, cal)
 
-    plain = feature(*_band_readings(seed))
-    shaped = feature(*_band_readings(seed, shape=0.08))
-    cubic = feature(*_band_readings(seed, cubic=0.02))
+    plain = feature(_band_readings(seed))
+    shaped = feature(_band_readings(seed, shape=0.08))
+    cubic = feature(_band_readings(seed, cubic=0.02))
     assert 0.05 < plain < 3.5
     assert 0.05 < shaped < 3.5
     assert cubic > 5.0 * max(plain, shaped, 1.0)
-    assert np.isnan(_cubic_feature(_band_readings(seed)[0], None))
+    assert np.isnan(_cubic_feature(_band_readings(seed), None))
