@@ -1,72 +1,80 @@
-"""The rclpy node (ROS 2 Jazzy): a thin shell around one ``SensorCalibrator`` per sensor.
+"""The rclpy node (ROS 2 Jazzy): the ROS face of one ``SensorCalibrator`` per sensor, run in a worker process.
 
 Topics (defaults, all remappable; REP-145 names, REP-103 units):
 
-- subscribes ``imu/data_raw`` (sensor_msgs/Imu) and ``imu/mag`` (sensor_msgs/MagneticField) with
-  the sensor-data QoS profile (best effort: REP-2003 for consumers of raw sensor data; it matches
-  reliable and best-effort drivers);
+- subscribes ``imu/data_raw`` (sensor_msgs/Imu) and ``imu/mag`` (sensor_msgs/MagneticField) best effort
+  (REP-2003's sensor-data profile, which matches reliable and best-effort drivers), with a queue of
+  ``queue_depth`` messages instead of its 5 (a burst of a serial driver, a pause of the interpreter);
 - publishes, reliable (the system default, REP-2003 for publishers, so default-QoS and sensor-data
   subscribers both receive), ``imu_calibrated/data_raw`` and ``imu_calibrated/mag`` (header
-  unchanged, covariance ``W Σ Wᵀ``), ``/calib/status`` (diagnostic_msgs/DiagnosticArray, one status
-  per sensor, every ``status_period_s``; also on ``/diagnostics`` when ``publish_diagnostics``), and the current
-  calibration on ``/calib/mag`` and ``/calib/accel`` (std_msgs/String with the ``ros__parameters``
-  YAML, transient-local so late joiners get it).
+  unchanged, covariance ``W Σ Wᵀ``; a sample with a non-finite or zero vector is not published),
+  ``/calib/status`` (diagnostic_msgs/DiagnosticArray, one status per sensor, every ``status_period_s``,
+  with the rate received and the callback times; also on ``/diagnostics`` when ``publish_diagnostics``),
+  and the current calibration on ``/calib/mag`` and ``/calib/accel`` (std_msgs/String with the
+  ``ros__parameters`` YAML, transient-local so late joiners get it).
 
 Services (std_srvs/Trigger): ``~/reset`` (forget samples and calibrations), ``~/save`` (write the
 calibration file now), ``~/refit`` (validate and fit now; the validator and guard rails still decide).
 
-Threads: the sample callbacks (conversion, stamp choice, gate, buffer insert, publishing the
-calibrated message) run in one callback group per sensor; each ``SensorCalibrator`` defers its
-evaluation (``defer_evaluation``), and a timer in a callback group of its own (every
-``evaluation_period_s``) runs ``run_pending`` under the sensor's lock: the centre update and the
-validator under it, the fit outside it on a snapshot, the new calibration swapped in under it.
-Status and services use the default group. ``main`` spins a ``MultiThreadedExecutor`` with a
-thread per group, so a fit never delays a sample callback, and a validation only the callbacks of
-its own sensor; with a single-threaded executor the node works the same, only serially.
+Threads and processes: a fit holds the interpreter (the GIL) for tens of milliseconds to seconds, so no
+thread of this process may run one. The sample callbacks only convert the message, choose its time,
+publish the calibrated message with the calibration the node holds and queue the sample; a timer
+(``_pump``, every 10 ms) hands the queued samples to the calibrators in a worker process
+(``worker.CalibrationWorker``: the gate, buffer, validator, fits, change detection, the gyro pairing)
+and takes back calibrations, events, statuses and service answers. ``~/reset`` and ``~/refit`` await
+the worker's answer without blocking the executor. ``main`` spins a ``SingleThreadedExecutor``: the
+``MultiThreadedExecutor`` of Jazzy's rclpy (7.1.6) cycles its wait loop at up to a full core and loses
+most of a 100 Hz stream (rclpy issue 1452, fixed after Jazzy), and nothing here needs a second thread.
 
 The magnetometer's gyro-aided fit (``gyro_aided``, ``model/fitting_gyro.py``) takes the angular rate of
-the latest Imu message with each MagneticField message whose header stamp is within ``GYRO_PAIR_S`` of it
-and whose ``frame_id`` is the same (the rate must be in the magnetometer's frame; with the accelerometer
-disabled there is no Imu subscription and no rate).
+the Imu message nearest in stamp (within ``GYRO_PAIR_S``) of the same ``frame_id`` (the rate must be in
+the magnetometer's frame), whichever topic the executor serves first (``pairing.RatePairing``); with the
+accelerometer disabled the Imu topic is still subscribed for the rates.
 
 Sample times come from the header stamp or the receive time (``stamp_source``: ``auto`` uses the
 header stamp until it is zero or stops increasing, then the receive time, with one warning).
 
 Parameters are declared with descriptors and ranges (defaults in ``msg_configs/margcal.yaml``,
 float literals since rclpy types parameters strictly) and checked again as a whole
-(``PipelineConfig.checked``) when set at run time. The calibration file is written atomically
-(``save_calibrations``) after each accepted calibration and read at start; a corrupt or newer file
-is refused with an error log line and the node starts uncalibrated.
+(``PipelineConfig.checked``) when set at run time, then sent to the worker. The calibration file is
+written atomically (``save_calibrations``) after each accepted calibration and read at start; a corrupt
+or newer file is refused with an error log line and the node starts uncalibrated.
 """
 
 from __future__ import annotations
 
+import math
 import threading
 import time
+from collections import deque
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
-from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.task import Future
 from sensor_msgs.msg import Imu, MagneticField
 from std_msgs.msg import Header, String
 from std_srvs.srv import Trigger
 
+from ..model.calibration import Calibration
 from ..model.calibration_file import load_calibrations, save_calibrations
 from ..model.errors import CalibrationFileError, ConfigError
-from ..stream.calibrator import SensorCalibrator
-from ..stream.config import GYRO_PAIR_S, PipelineConfig
-from ..stream.status import EventKind, Level
+from ..stream.config import PipelineConfig
+from ..stream.status import EventKind, Level, State, Status
 from ..validation.shipped import load_validator
+from .environment import use_venv_ament_prefix
 from .messages import calibrate_imu, calibrate_mag, calibration_to_string, imu_to_numpy, mag_to_numpy, status_to_diagnostic
 from .stamps import STAMP_SOURCES, StampSource
+from .worker import CalibrationWorker
 
 __all__ = ["MargCalNode", "main"]
 
@@ -119,6 +127,18 @@ _ACCEL_GATE: dict[str, tuple[float, float, str]] = {
 }
 
 
+PUMP_PERIOD_S = 0.01
+"""How often queued samples go to the worker and its answers are read, s."""
+REQUEST_TIMEOUT_S = 60.0
+"""A service waits this long for the worker's answer, s."""
+WORKER_RESTART_S = 5.0
+"""A worker that ended is started again at most this often, s."""
+CALLBACK_TIMES = 2000
+"""Sample callback durations kept per sensor for the status's p50/p99/max."""
+RATE_WINDOW_S = 5.0
+"""The received rate in the status is averaged over about this long, s."""
+
+
 def _fdesc(lo: float, hi: float, text: str, read_only: bool = False) -> ParameterDescriptor:
     return ParameterDescriptor(description=text, read_only=read_only,
                                floating_point_range=[FloatingPointRange(from_value=float(lo), to_value=float(hi), step=0.0)])
@@ -132,6 +152,36 @@ def _idesc(lo: int, hi: int, text: str, read_only: bool = False) -> ParameterDes
 def _level_bytes(level: int) -> bytes:
     """rclpy's DiagnosticStatus.level is a ``byte`` field: one-byte ``bytes``."""
     return bytes([int(level)])
+
+
+def _publishable(v: Any) -> bool:
+    """A vector worth publishing calibrated: finite and not all zero (a failed read, a dead sensor)."""
+    return bool(np.isfinite(v).all() and np.any(v != 0.0))
+
+
+class _Traffic:
+    """What one sensor's topic brought: messages received, the rate over the last seconds, callback times."""
+
+    def __init__(self) -> None:
+        self.received = 0
+        self.last_rx: float | None = None
+        self.times: deque[float] = deque(maxlen=CALLBACK_TIMES)
+        self._counts: deque[tuple[float, int]] = deque()
+
+    def tick(self, now: float) -> float:
+        """Record the count at ``now`` (each status); the rate over about ``RATE_WINDOW_S``, Hz."""
+        counts = self._counts
+        counts.append((now, self.received))
+        while len(counts) > 2 and now - counts[1][0] >= RATE_WINDOW_S:
+            counts.popleft()
+        (t0, n0), (t1, n1) = counts[0], counts[-1]
+        return (n1 - n0) / (t1 - t0) if t1 > t0 else 0.0
+
+    def values(self, rate: float) -> list[tuple[str, str]]:
+        ms = np.array(self.times) * 1e3
+        p50, p99, top = (np.percentile(ms, 50), np.percentile(ms, 99), ms.max()) if len(ms) else (math.nan,) * 3
+        return [("received", str(self.received)), ("rate_hz", f"{rate:.1f}"), ("callback_p50_ms", f"{p50:.3f}"),
+                ("callback_p99_ms", f"{p99:.3f}"), ("callback_max_ms", f"{top:.3f}")]
 
 
 class MargCalNode(Node):
@@ -154,65 +204,93 @@ class MargCalNode(Node):
             description="sample time: 'header' stamp, 'receive' time, or 'auto' (header, falling back to the receive "
                         "time for good when stamps are zero or not increasing)", read_only=True,
             additional_constraints="one of: " + ", ".join(STAMP_SOURCES)))
-        self.declare_parameter("evaluation_period_s", 0.05, _fdesc(
-            0.001, 10.0, "period of the worker that runs due validations and fits off the sample callbacks, s", read_only=True))
+        self.declare_parameter("queue_depth", 1000, _idesc(
+            10, 100000, "depth of the best-effort input queues, messages (1 s at 1 kHz by default)", read_only=True))
 
         self._publish_raw = bool(self.get_parameter("publish_uncalibrated").value)  # read per message: cached
-        self._cals: dict[str, SensorCalibrator] = {}
-        self._frame: dict[str, str] = dict.fromkeys(SENSORS, "")
-        self._rate: tuple[float, str, Any] | None = None  # the latest Imu: stamp, frame_id, angular rate
-        self._last_rx: dict[str, float] = {}
-        self._locks = {s: threading.Lock() for s in SENSORS}
-        self._save_lock = threading.Lock()  # autosave runs on the worker, save on a service
         mode = str(self.get_parameter("stamp_source").value)
         if mode not in STAMP_SOURCES:
             log.error(f"stamp_source {mode!r} is not one of {STAMP_SOURCES}; using 'auto'")
             mode = "auto"
         self._stamps = {"mag": StampSource(mode, "imu/mag"), "accel": StampSource(mode, "imu/data_raw")}
+        self._frame: dict[str, str] = dict.fromkeys(SENSORS, "")
+        self._traffic = {s: _Traffic() for s in SENSORS}
+        self._batch: list[tuple[Any, ...]] = []
+        self._calibration: dict[str, Calibration | None] = {}
+        self._configs: dict[str, PipelineConfig] = {}
+        self._status: dict[str, Status] = {}
+        self._requests: dict[int, tuple[Future, float]] = {}
+        self._save_lock = threading.Lock()
         loaded = self._load_file()
         validator = self._load_validator()
         latched = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE,
                              durability=DurabilityPolicy.TRANSIENT_LOCAL)
         self._pub_cal: dict[str, Any] = {}
         for s in SENSORS:
-            enabled = self.declare_parameter(f"{s}.enabled", True, ParameterDescriptor(description=f"calibrate the {s}")).value
+            enabled = self.declare_parameter(f"{s}.enabled", True, ParameterDescriptor(
+                description=f"calibrate the {s} (read at start)", read_only=True)).value
             cfg = self._declare_sensor(s)
             if not enabled:
                 continue
-            self._cals[s] = SensorCalibrator(s, cfg, calibration=loaded.get(s), validator=validator)
-            self._cals[s].defer_evaluation = True
+            self._configs[s] = cfg
+            self._calibration[s] = loaded.get(s)
+            self._status[s] = Status(s, Level.WARN, State.CALIBRATED if s in loaded else State.COLLECTING,
+                                     "starting the calibration worker", 0.0, 0, 0, 0)
             self._pub_cal[s] = self.create_publisher(String, f"/calib/{s}", latched)
-        if "mag" in self._cals:
+        self._worker = CalibrationWorker(self._specs(), validator, float(self.get_parameter("status_period_s").value))
+        self._worker_started = time.monotonic()
+        sensor_qos = QoSProfile(depth=int(self.get_parameter("queue_depth").value), history=HistoryPolicy.KEEP_LAST,
+                                reliability=ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.VOLATILE)
+        if "mag" in self._configs:
             self._pub_mag = self.create_publisher(MagneticField, "imu_calibrated/mag", OUTPUT_DEPTH)
-            self.create_subscription(MagneticField, "imu/mag", self._on_mag, qos_profile_sensor_data,
-                                     callback_group=MutuallyExclusiveCallbackGroup())
-        if "accel" in self._cals:
+            self.create_subscription(MagneticField, "imu/mag", self._on_mag, sensor_qos)
+        if self._configs:  # the Imu topic also brings the magnetometer's rates
             self._pub_imu = self.create_publisher(Imu, "imu_calibrated/data_raw", OUTPUT_DEPTH)
-            self.create_subscription(Imu, "imu/data_raw", self._on_imu, qos_profile_sensor_data,
-                                     callback_group=MutuallyExclusiveCallbackGroup())
+            self.create_subscription(Imu, "imu/data_raw", self._on_imu, sensor_qos)
         self._pub_status = self.create_publisher(DiagnosticArray, "/calib/status", 10)
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self.create_service(Trigger, "~/reset", self._srv_reset)
-        self.create_service(Trigger, "~/save", self._srv_save)
-        self.create_service(Trigger, "~/refit", self._srv_refit)
+        # a group of their own: a service awaiting the worker keeps its group busy, never the samples' default group
+        services = ReentrantCallbackGroup()
+        self.create_service(Trigger, "~/reset", self._srv_reset, callback_group=services)
+        self.create_service(Trigger, "~/save", self._srv_save, callback_group=services)
+        self.create_service(Trigger, "~/refit", self._srv_refit, callback_group=services)
         self.add_on_set_parameters_callback(self._validate_parameters)
-        # post-set callbacks (rclpy >= Iron) apply values only once they are set
-        self._apply_in_validation = not hasattr(self, "add_post_set_parameters_callback")
-        if not self._apply_in_validation:
-            self.add_post_set_parameters_callback(self._apply_parameters)
+        self.add_post_set_parameters_callback(self._apply_parameters)
         self.create_timer(float(self.get_parameter("status_period_s").value), self._publish_status)
-        self._eval_group = MutuallyExclusiveCallbackGroup()
-        self.create_timer(float(self.get_parameter("evaluation_period_s").value), self._run_pending,
-                          callback_group=self._eval_group)
-        for s, c in self._cals.items():
-            if c.calibration is not None:
-                self._pub_cal[s].publish(calibration_to_string(c.calibration, String, node=self.get_name()))
-        log.info(f"margcal started: sensors {sorted(self._cals)}, calibrated {sorted(s for s in self._cals if s in loaded)}")
+        self.create_timer(PUMP_PERIOD_S, self._pump)
+        for s, cal in self._calibration.items():
+            if cal is not None:
+                self._pub_cal[s].publish(calibration_to_string(cal, String, node=self.get_name()))
+        log.info(f"margcal started: sensors {sorted(self._configs)}, calibrated {sorted(s for s in self._configs if s in loaded)}, "
+                 f"worker process {self._worker.pid}")
 
     @property
-    def calibrators(self) -> dict[str, SensorCalibrator]:
-        """The calibrator of each enabled sensor (read them; the node feeds them)."""
-        return dict(self._cals)
+    def calibrations(self) -> dict[str, Calibration | None]:
+        """The calibration each enabled sensor's messages are published with now (None: uncalibrated)."""
+        return dict(self._calibration)
+
+    @property
+    def received(self) -> dict[str, int]:
+        """Messages received per sensor topic (``accel``: the Imu topic) since the start."""
+        return {s: t.received for s, t in self._traffic.items()}
+
+    @property
+    def configs(self) -> dict[str, PipelineConfig]:
+        """The options of each enabled sensor, as the worker has them."""
+        return dict(self._configs)
+
+    @property
+    def statuses(self) -> dict[str, Status]:
+        """The latest status of each enabled sensor from the worker."""
+        return dict(self._status)
+
+    def _specs(self) -> dict[str, tuple[PipelineConfig, Calibration | None]]:
+        return {s: (cfg, self._calibration[s]) for s, cfg in self._configs.items()}
+
+    def destroy_node(self) -> None:
+        """Stop the worker, then the node."""
+        self._worker.stop()
+        super().destroy_node()
 
     # -- parameters -------------------------------------------------------------------------------
 
@@ -247,80 +325,109 @@ class MargCalNode(Node):
 
     def _validate_parameters(self, params: list[Parameter]) -> SetParametersResult:
         changed = {p.name: p.value for p in params}
-        if self._apply_in_validation and "publish_uncalibrated" in changed:
-            self._publish_raw = bool(changed["publish_uncalibrated"])
-        for s in self._cals:
+        for s in self._configs:
             if any(k.startswith(f"{s}.") for k in changed):
                 try:
                     self._config_from(s, changed)
                 except ConfigError as exc:
                     return SetParametersResult(successful=False, reason=str(exc))
-                if self._apply_in_validation:
-                    with self._locks[s]:
-                        self._cals[s].reconfigure(self._config_from(s, changed))
         return SetParametersResult(successful=True)
 
     def _apply_parameters(self, params: list[Parameter]) -> None:
         self._publish_raw = bool(self.get_parameter("publish_uncalibrated").value)
-        for s, cal in self._cals.items():
+        for s in self._configs:
             if any(p.name.startswith(f"{s}.") for p in params):
-                with self._locks[s]:
-                    cal.reconfigure(self._config_from(s, {}))
+                self._configs[s] = self._config_from(s, {})
+                self._worker.request("configure", s, self._configs[s])
 
     # -- data -------------------------------------------------------------------------------------
 
     def _on_mag(self, msg: MagneticField) -> None:
+        t0 = time.perf_counter()
         t, v = mag_to_numpy(msg)
-        rate = self._rate  # written by the Imu callback (another thread): one reference, read once
-        gyro = rate[2] if (rate is not None and abs(t - rate[0]) <= GYRO_PAIR_S and rate[1] == msg.header.frame_id) else None
-        cal = self._ingest("mag", t, v, gyro, msg.header.frame_id)
-        if cal is not None or self._publish_raw:
+        self._take("mag", t, v, None, msg.header.frame_id)
+        cal = self._calibration["mag"]
+        if (cal is not None or self._publish_raw) and _publishable(v):
             self._pub_mag.publish(calibrate_mag(msg, cal))
+        self._traffic["mag"].times.append(time.perf_counter() - t0)
 
     def _on_imu(self, msg: Imu) -> None:
+        t0 = time.perf_counter()
         t, acc, gyro = imu_to_numpy(msg)
-        self._rate = (t, msg.header.frame_id, gyro)
-        cal = self._ingest("accel", t, acc, gyro, msg.header.frame_id)
-        if cal is not None or self._publish_raw:
-            self._pub_imu.publish(calibrate_imu(msg, cal))
+        self._take("accel", t, acc, gyro, msg.header.frame_id)
+        if "accel" in self._configs:
+            cal = self._calibration["accel"]
+            if (cal is not None or self._publish_raw) and _publishable(acc):
+                self._pub_imu.publish(calibrate_imu(msg, cal))
+        self._traffic["accel"].times.append(time.perf_counter() - t0)
 
-    def _now_s(self) -> float:
-        return self.get_clock().now().nanoseconds * 1e-9
-
-    def _ingest(self, s: str, t: float, v: Any, gyro: Any, frame_id: str) -> Any:
-        """Push one sample (the slow evaluation is only recorded); the calibration to publish it with."""
+    def _take(self, s: str, t: float, v: Any, gyro: Any, frame_id: str) -> None:
+        """Count one message, choose its time and queue it for the worker (``worker.Sample``)."""
+        now = time.monotonic()
+        traffic = self._traffic[s]
+        traffic.received += 1
+        traffic.last_rx = now
         self._frame[s] = frame_id
-        self._last_rx[s] = time.monotonic()
         src = self._stamps[s]
         t = src.choose(t, self._now_s)
         if src.warning is not None:
             self.get_logger().warning(src.pop_warning() or "")
-        c = self._cals[s]
-        with self._locks[s]:
-            events = c.push(t, v, gyro)
-            cal = c.calibration
-        for ev in events:
-            self._handle(ev)
-        return cal
+        g = (math.nan,) * 3 if gyro is None else (float(gyro[0]), float(gyro[1]), float(gyro[2]))
+        self._batch.append((s, t, float(v[0]), float(v[1]), float(v[2]), *g, frame_id, now))
 
-    def _run_pending(self) -> None:
-        """The worker: run the evaluations the sample callbacks recorded (validation and fit)."""
-        for s, c in self._cals.items():
-            if c.pending:
-                for ev in c.run_pending(self._locks[s]):
-                    self._handle(ev)
+    def _now_s(self) -> float:
+        return self.get_clock().now().nanoseconds * 1e-9
+
+    def _pump(self) -> None:
+        """Hand the queued samples to the worker; take what it sent back (a timer, every ``PUMP_PERIOD_S``)."""
+        batch, self._batch = self._batch, []
+        self._worker.send(batch)
+        for item in self._worker.poll():
+            kind = item[0]
+            if kind == "calibration":
+                self._calibration[item[1]] = item[2]
+            elif kind == "event":
+                self._handle(item[1])
+            elif kind == "status":
+                self._status.update(item[1])
+            elif kind == "reply":
+                request = self._requests.pop(item[1], None)
+                if request is not None:
+                    request[0].set_result((item[2], item[3]))
+            elif kind == "error":
+                self.get_logger().error(f"calibration worker: {item[1]}")
+        now = time.monotonic()
+        for rid, (future, since) in list(self._requests.items()):
+            if now - since > REQUEST_TIMEOUT_S:
+                del self._requests[rid]
+                future.set_result((False, f"the calibration worker did not answer within {REQUEST_TIMEOUT_S:.0f} s"))
+
+    def _check_worker(self) -> None:
+        """A worker that died is started again from the calibrations the node holds (its buffers are lost)."""
+        now = time.monotonic()
+        if self._worker.alive or now - self._worker_started < WORKER_RESTART_S:
+            return
+        self.get_logger().error("the calibration worker process ended; starting a new one from the current calibrations")
+        self._worker.restart(self._specs())
+        self._worker_started = now
+        for future, _ in self._requests.values():
+            future.set_result((False, "the calibration worker was restarted"))
+        self._requests.clear()
 
     def _handle(self, ev: Any) -> None:
         log = self.get_logger()
         if ev.kind is EventKind.CALIBRATED and ev.calibration is not None:
             log.info(f"{ev.sensor}: {ev.message}")
+            self._calibration[ev.sensor] = ev.calibration
             self._pub_cal[ev.sensor].publish(calibration_to_string(ev.calibration, String, node=self.get_name()))
             if self.get_parameter("autosave").value:
                 self._save()
-        elif ev.kind is EventKind.CHANGED or (ev.kind is EventKind.REJECTED and self._cals[ev.sensor].calibration is None):
+        elif ev.kind is EventKind.CHANGED or (ev.kind is EventKind.REJECTED and self._calibration.get(ev.sensor) is None):
             log.warning(f"{ev.sensor}: {ev.message}")
         elif ev.kind is EventKind.REJECTED:
             log.info(f"{ev.sensor}: {ev.message} (keeping the current calibration)")
+        elif ev.kind is EventKind.TIME_BASE:
+            log.warning(f"{ev.sensor}: {ev.message}")
         else:
             log.debug(f"{ev.sensor}: {ev.message}")
 
@@ -359,7 +466,7 @@ class MargCalNode(Node):
 
     def _save(self) -> tuple[bool, str]:
         path = self._path()
-        cals = {s: c.calibration for s, c in self._cals.items() if c.calibration is not None}
+        cals = {s: c for s, c in self._calibration.items() if c is not None}
         if path is None:
             return False, "calibration_file is empty: persistence is off"
         if not cals:
@@ -374,44 +481,41 @@ class MargCalNode(Node):
 
     # -- services ---------------------------------------------------------------------------------
 
-    def _srv_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
-        for s, c in self._cals.items():
-            with self._locks[s]:
-                c.reset()
-        response.success, response.message = True, f"reset {sorted(self._cals)}: collecting"
+    async def _ask_worker(self, kind: str, response: Trigger.Response) -> Trigger.Response:
+        """Send a command to the worker and await its answer (the executor goes on serving samples meanwhile)."""
+        future = Future()
+        self._requests[self._worker.request(kind)] = (future, time.monotonic())
+        response.success, response.message = await future
         return response
+
+    async def _srv_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        for s in self._calibration:
+            self._calibration[s] = None  # nothing more is published with the old calibration
+        return await self._ask_worker("reset", response)
 
     def _srv_save(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         response.success, response.message = self._save()
         return response
 
-    def _srv_refit(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
-        messages, ok = [], False
-        for s, c in self._cals.items():
-            with self._locks[s]:
-                events = c.refit()
-                status = c.status().message
-            for ev in events:
-                self._handle(ev)
-            done = [e for e in events if e.kind in (EventKind.CALIBRATED, EventKind.REJECTED)]
-            ok = ok or any(e.kind is EventKind.CALIBRATED for e in done)
-            messages.append(f"{s}: " + ("; ".join(e.message for e in done) or status))
-        response.success, response.message = ok, " | ".join(messages)
-        return response
+    async def _srv_refit(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        return await self._ask_worker("refit", response)
 
     # -- status -----------------------------------------------------------------------------------
 
     def _publish_status(self) -> None:
+        self._check_worker()
         now = time.monotonic()
         stale = float(self.get_parameter("stale_timeout_s").value)
         arr = DiagnosticArray(header=Header(stamp=self.get_clock().now().to_msg(), frame_id=""))
-        for s, c in self._cals.items():
-            with self._locks[s]:
-                st = c.status()
-            if s in self._last_rx and now - self._last_rx[s] > stale:
-                st = replace(st, level=Level.STALE, message=f"no samples for {now - self._last_rx[s]:.0f} s; {st.message}")
-            arr.status.append(status_to_diagnostic(st, DiagnosticStatus, KeyValue, level_encoder=_level_bytes,
-                                                   hardware_id=self._frame[s]))
+        for s, st in self._status.items():
+            traffic = self._traffic[s]
+            if traffic.last_rx is not None and now - traffic.last_rx > stale:
+                st = replace(st, level=Level.STALE, message=f"no samples for {now - traffic.last_rx:.0f} s; {st.message}")
+            msg = status_to_diagnostic(st, DiagnosticStatus, KeyValue, level_encoder=_level_bytes, hardware_id=self._frame[s])
+            extra = [*traffic.values(traffic.tick(now)), ("worker_backlog", str(max(traffic.received - st.samples_seen, 0))),
+                     ("worker_restarts", str(self._worker.restarts))]
+            msg.values.extend(KeyValue(key=k, value=v) for k, v in extra)
+            arr.status.append(msg)
         self._pub_status.publish(arr)
         if self.get_parameter("publish_diagnostics").value:
             self._pub_diag.publish(arr)
@@ -419,9 +523,10 @@ class MargCalNode(Node):
 
 def main(args: list[str] | None = None) -> None:
     """Console entry point ``margcal_node`` (``ros2 run ros_margcal margcal_node``)."""
+    use_venv_ament_prefix()
     rclpy.init(args=args)
     node = None
-    executor = MultiThreadedExecutor(num_threads=4)  # a thread per callback group: mag, accel, worker, default
+    executor = SingleThreadedExecutor()  # see the module docstring: Jazzy's MultiThreadedExecutor loses messages
     try:
         node = MargCalNode()
         executor.add_node(node)

@@ -47,7 +47,7 @@ def default_validator_candidates() -> list[Path]:
     else:
         try:
             found.append(Path(get_package_share_directory("ros_margcal")) / "msg_configs")
-        except (PackageNotFoundError, ValueError, LookupError):
+        except (PackageNotFoundError, ValueError, LookupError, OSError):  # OSError: AMENT_PREFIX_PATH unset
             pass
     found.append(here.parent / "msg_configs")
     if len(here.parents) > 3:  # <prefix>/lib/pythonX.Y/site-packages/ros_margcal
