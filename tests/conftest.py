@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib.util
+import os
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -12,6 +13,13 @@ import numpy as np
 import pytest
 
 from ros_margcal.model.calibration import Calibration
+from ros_margcal.ros.environment import use_venv_ament_prefix
+
+# ROS 2 from the PyPI wheels needs AMENT_PREFIX_PATH (a sourced Jazzy has it); node tests on one machine must
+# never hear each other: a domain of this run's own (children inherit it) and discovery on this host only
+use_venv_ament_prefix()
+os.environ.setdefault("ROS_DOMAIN_ID", str(1 + os.getpid() % 100))
+os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 
 REAL_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real"
 

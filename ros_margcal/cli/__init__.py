@@ -17,7 +17,7 @@ from ..model.errors import MargCalError, one_line
 
 __all__ = ["main"]
 
-_COMMAND_MODULES = ("simulate", "calibrate", "replay", "validator", "diagnose")
+_COMMAND_MODULES = ("simulate", "calibrate", "replay", "validator", "diagnose", "demo")
 BENCH_AREAS = ("fitting", "coverage", "pipeline", "diagnosis")
 
 

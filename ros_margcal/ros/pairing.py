@@ -5,10 +5,10 @@ magnetometer's frame. Imu and MagneticField arrive on two topics, and an executo
 pairing each magnetometer sample with the *latest* rate seen would give a sample the rate of the previous
 Imu message, or none, depending on callback order. ``RatePairing`` holds a magnetometer sample back until
 the rate nearest to its stamp is known: an Imu message of the same ``frame_id`` stamped at or after it has
-arrived, or ``hold_s`` of arrival time has passed (an IMU slower than the magnetometer, or one that
-stopped), then gives it the rate of the Imu message nearest in stamp within ``window_s``, else none.
-Magnetometer samples leave in the order they came; a frame that never had a rate (another frame, the
-accelerometer off) is not held at all.
+arrived, or ``hold_s`` of arrival time has passed (an IMU slower than the magnetometer, one that
+stopped, one in another frame), then gives it the rate of the Imu message nearest in stamp within
+``window_s``, else none. Magnetometer samples leave in the order they came. Holding delays only the
+calibrator's input (by at most ``hold_s``), never the calibrated message, which the node publishes at once.
 """
 
 from __future__ import annotations
@@ -32,7 +32,6 @@ class RatePairing:
         self.window_s = float(window_s)
         self.hold_s = float(hold_s)
         self._rates: dict[str, deque[tuple[float, Any]]] = {}
-        self._rate_arrival: dict[str, float] = {}
         self._history = int(history)
         self._held: deque[tuple[float, str, Any, float]] = deque()
 
@@ -46,7 +45,6 @@ class RatePairing:
         if rates is None:
             rates = self._rates[frame] = deque(maxlen=self._history)
         rates.append((t, gyro))
-        self._rate_arrival[frame] = arrival
         return self.release(arrival)
 
     def add_mag(self, t: float, frame: str, xyz: Any, arrival: float) -> list[tuple[float, Any, Any]]:
@@ -61,8 +59,7 @@ class RatePairing:
         while held:
             t, frame, xyz, arrival = held[0]
             rates = self._rates.get(frame)
-            live = rates is not None and now - self._rate_arrival[frame] <= self.hold_s
-            if not everything and live and rates[-1][0] < t and now - arrival <= self.hold_s:
+            if not everything and now - arrival <= self.hold_s and (rates is None or rates[-1][0] < t):
                 break  # a rate stamped at or after t may still come
             held.popleft()
             out.append((t, xyz, self._nearest(rates, t)))
@@ -81,5 +78,4 @@ class RatePairing:
     def clear(self) -> None:
         """Forget rates and held samples (a reset)."""
         self._rates.clear()
-        self._rate_arrival.clear()
         self._held.clear()

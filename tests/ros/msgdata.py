@@ -8,11 +8,15 @@ from the same numpy arrays, so both paths see the same data. ``rosbags_classes()
 
 from __future__ import annotations
 
+import importlib
+import os
 from collections.abc import Iterator
 from dataclasses import dataclass
+from types import ModuleType
 from typing import Any
 
 import numpy as np
+import pytest
 from numpy.typing import ArrayLike
 
 UNKNOWN_COVARIANCE = np.array([-1.0] + [0.0] * 8)
@@ -55,6 +59,14 @@ def rosbags_classes() -> MessageClasses:
         String=t["std_msgs/msg/String"],
         level_encoder=int,
     )
+
+
+def import_rclpy() -> ModuleType:
+    """rclpy, or a skip where ROS 2 is absent; under CI (``CI=true``) a missing rclpy fails instead: the node
+    tests must run there (the ``[ros]`` extra installs it)."""
+    if os.environ.get("CI") == "true":
+        return importlib.import_module("rclpy")
+    return pytest.importorskip("rclpy", reason="rclpy not importable: install the [ros] extra or source ROS 2 Jazzy")
 
 
 def rclpy_classes() -> MessageClasses:

@@ -19,9 +19,10 @@ from typing import Any
 import numpy as np
 import pytest
 
-rclpy = pytest.importorskip("rclpy", reason="rclpy not importable: node tests need a sourced ROS 2 Jazzy environment")
+from msgdata import MessageClasses, import_rclpy, mag_msg, mag_stream, rclpy_classes
 
-from msgdata import MessageClasses, mag_msg, mag_stream, rclpy_classes  # noqa: E402
+rclpy = import_rclpy()
+
 from rclpy.context import Context  # noqa: E402
 from rclpy.executors import Executor, SingleThreadedExecutor  # noqa: E402
 from rclpy.node import Node  # noqa: E402
