@@ -21,7 +21,14 @@ setup(
         (f"share/{PACKAGE}/launch", glob("launch/*.launch.py")),
     ],
     install_requires=["setuptools", "numpy>=1.24", "scipy>=1.10", "PyYAML>=6", "rosbags>=0.10", "matplotlib>=3.6", "tqdm>=4.60"],
-    extras_require={"test": ["pytest>=7", "hypothesis>=6"], "dev": ["ruff", "mypy"]},
+    extras_require={
+        "test": ["pytest>=7", "hypothesis>=6"],
+        "dev": ["ruff", "mypy"],
+        # ROS 2 Jazzy from PyPI wheels, for a machine without a ROS install; with an apt-installed, sourced
+        # Jazzy leave this extra out (its rclpy is the one to use)
+        "ros": ["ros-jazzy-rclpy", "ros-jazzy-rmw-fastrtps-cpp", "ros-jazzy-sensor-msgs", "ros-jazzy-diagnostic-msgs",
+                "ros-jazzy-std-srvs", "ros-jazzy-std-msgs"],
+    },
     # colcon test (ament_python) runs pytest when tests_require (or extras_require["test"]) names it
     tests_require=["pytest>=7", "hypothesis>=6"],
     zip_safe=True,

@@ -67,6 +67,7 @@ else:
     MISSING = ""
 
 from ros_margcal.sim import simulation as sim
+from ros_margcal.sim.motion import tumbling_motion
 
 SENSORS = {"accel": ("imu/data_raw", "imu_calibrated/data_raw"), "mag": ("imu/mag", "imu_calibrated/mag")}
 """Sensor -> (input topic, calibrated output topic)."""
@@ -89,8 +90,9 @@ CLK_TCK = os.sysconf("SC_CLK_TCK")
 def publisher(seconds: float, imu_rate: float, mag_rate: float) -> int:
     """The publishing process: the simulated streams in real time; prints ``START`` when it starts, then JSON."""
     rng = np.random.default_rng(3)
-    imu = sim.tumbling(sim.random_sensor(rng, "accel"), seconds, imu_rate, rng)
-    mag = sim.magnetometer_stream(sim.random_sensor(rng, "mag"), seconds, mag_rate, rng, motion="tumble")
+    motion = tumbling_motion(seconds, max(imu_rate, mag_rate), rng)  # one body: the gyro turns as the field does
+    imu = sim.tumbling(sim.random_sensor(rng, "accel"), seconds, imu_rate, rng, motion=motion)
+    mag = sim.magnetometer_stream(sim.random_sensor(rng, "mag"), seconds, mag_rate, rng, motion=motion)
     acc, gyr, mxyz = imu.raw.tolist(), imu.gyro.tolist(), mag.raw.tolist()
     times = np.concatenate([np.asarray(imu.t, float), np.asarray(mag.t, float)])
     kinds = np.concatenate([np.zeros(len(imu.t), int), np.ones(len(mag.t), int)])
@@ -120,9 +122,9 @@ def publisher(seconds: float, imu_rate: float, mag_rate: float) -> int:
         mmsg = MagneticField(header=Header(frame_id="imu_link"), magnetic_field_covariance=zero9)
         ia, ig, im, mf = imsg.linear_acceleration, imsg.angular_velocity, imsg.header.stamp, mmsg.magnetic_field
         ms = mmsg.header.stamp
-        late = np.empty(len(due))
+        late = np.empty(len(due))  # when each message went out after its due time, s
         sent = [0, 0]
-        wakeups = 0
+        wakeups, busy = 0, 0.0
         n, i = len(due), 0
         print("START", flush=True)
         start = time.monotonic()
@@ -133,6 +135,7 @@ def publisher(seconds: float, imu_rate: float, mag_rate: float) -> int:
                 continue
             wakeups += 1
             while i < n and due[i] <= now:  # everything due
+                late[i] = time.monotonic() - start - due[i]
                 stamp = time.time_ns()
                 if kind[i] == 0:
                     a, g = acc[idx[i]], gyr[idx[i]]
@@ -144,11 +147,12 @@ def publisher(seconds: float, imu_rate: float, mag_rate: float) -> int:
                     ms.sec, ms.nanosec = stamp // 1_000_000_000, stamp % 1_000_000_000
                     mf.x, mf.y, mf.z = mxyz[idx[i]]
                     pub_mag.publish(mmsg)
-                late[i] = time.monotonic() - start - due[i]
+                busy += time.monotonic() - start - due[i] - late[i]
                 sent[kind[i]] += 1
                 i += 1
         wall = time.monotonic() - start
         print(json.dumps({"imu": sent[0], "mag": sent[1], "wall_s": wall, "span_s": due[-1], "wakeups": wakeups,
+                          "publish_us": busy / max(n, 1) * 1e6,
                           "late_mean_ms": float(late.mean() * 1e3), "late_p99_ms": float(np.percentile(late, 99) * 1e3),
                           "late_max_ms": float(late.max() * 1e3), "late_end_ms": float(late[-1] * 1e3)}), flush=True)
         return 0
@@ -313,13 +317,17 @@ class Lines:
             return None
 
 
-def _end(proc: subprocess.Popen[Any] | None, first: int = signal.SIGINT, wait_s: float = 10.0) -> None:
-    """End a child we started: ``first`` (SIGINT: a clean ROS shutdown), then SIGTERM, then SIGKILL; then any
-    process of its tree that outlived it (the node's worker and forkserver), by pid and start time."""
+def _end(proc: subprocess.Popen[Any] | None, grace_s: float = 0.0, wait_s: float = 10.0) -> None:
+    """End a child we started: ``grace_s`` to end by itself, then SIGINT (a clean ROS shutdown), SIGTERM, SIGKILL;
+    then any process of its tree that outlived it (the node's worker and forkserver), by pid and start time."""
     if proc is None:
         return
     tree = process_tree(proc.pid)
-    for sig, wait in ((first, wait_s), (signal.SIGTERM, 3.0), (signal.SIGKILL, 3.0)):
+    try:
+        proc.wait(grace_s)
+    except subprocess.TimeoutExpired:
+        pass
+    for sig, wait in ((signal.SIGINT, wait_s), (signal.SIGTERM, 3.0), (signal.SIGKILL, 3.0)):
         if proc.poll() is not None:
             break
         proc.send_signal(sig)
@@ -339,15 +347,16 @@ def _end(proc: subprocess.Popen[Any] | None, first: int = signal.SIGINT, wait_s:
             time.sleep(0.05)
 
 
-def run(seconds: float, imu_rate: float, mag_rate: float) -> dict[str, Any]:
-    """One run: the node, the counter and the publisher in processes of their own; the figures as a dict."""
+def run(seconds: float, imu_rate: float, mag_rate: float, node_cmd: list[str]) -> dict[str, Any]:
+    """One run: the node (``node_cmd`` after the interpreter), the counter and the publisher in processes of their
+    own; the figures as a dict."""
     here = str(Path(__file__).resolve())
     log = tempfile.NamedTemporaryFile("w+", prefix="margcal_bench_node_", suffix=".log", delete=False)
     node = cnt = pub = None
     out: dict[str, Any] = {"imu_rate": imu_rate, "mag_rate": mag_rate, "log": log.name}
     t_start = time.monotonic()
     try:
-        node = subprocess.Popen([sys.executable, *NODE_CMD], stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
+        node = subprocess.Popen([sys.executable, *node_cmd], stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
         cnt = subprocess.Popen([sys.executable, here, "--counter"], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
         pub = subprocess.Popen([sys.executable, here, "--publisher", "--seconds", str(seconds), "--imu-rate", str(imu_rate),
                                 "--mag-rate", str(mag_rate)], stdout=subprocess.PIPE, stdin=subprocess.DEVNULL, text=True)
@@ -377,8 +386,8 @@ def run(seconds: float, imu_rate: float, mag_rate: float) -> dict[str, Any]:
         out["node_alive"] = node.poll() is None
         return out
     finally:
-        _end(pub)
-        _end(cnt)
+        _end(pub, grace_s=5.0)  # both end by themselves once they printed
+        _end(cnt, grace_s=5.0)
         _end(node)
         log.close()
         out["run_s"] = time.monotonic() - t_start
@@ -421,13 +430,13 @@ def run_row(r: dict[str, Any]) -> str:
     ratio = c["node"] / c["counter"] if c["counter"] > 0 else float("nan")
     return (f"{r['imu_rate']:.0f}:{r['mag_rate']:.0f}".rjust(9) + f" {c['wall_s']:>6.1f} {c['node']:>7.1f} {c['worker']:>7.1f} "
             f"{c['counter']:>8.1f} {ratio:>6.2f} {p['late_mean_ms']:>8.3f} {p['late_p99_ms']:>8.3f} {p['late_max_ms']:>8.2f} "
-            f"{p['late_end_ms']:>8.2f} {r['counter']['statuses']:>8d} {'yes' if r['counter']['stable'] else 'no':>6s} "
-            f"{r['run_s']:>6.1f}")
+            f"{p['late_end_ms']:>8.2f} {p['publish_us']:>6.0f} {r['counter']['statuses']:>8d} "
+            f"{'yes' if r['counter']['stable'] else 'no':>6s} {r['run_s']:>6.1f}")
 
 
 RUN_HEADER = (f"{'IMU:mag':>9s} {'wall s':>6s} {'node %':>7s} {'worker':>7s} {'counter%':>8s} {'ratio':>6s} "
-              f"{'late avg':>8s} {'late p99':>8s} {'late max':>8s} {'late end':>8s} {'statuses':>8s} {'stable':>6s} "
-              f"{'run s':>6s}")
+              f"{'late avg':>8s} {'late p99':>8s} {'late max':>8s} {'late end':>8s} {'pub us':>6s} {'statuses':>8s} "
+              f"{'stable':>6s} {'run s':>6s}")
 
 
 def print_tables(results: list[dict[str, Any]]) -> None:
@@ -473,14 +482,15 @@ def _progress(r: dict[str, Any]) -> None:
           f"counter {r['cpu']['counter']:.1f} %; {r['run_s']:.0f} s", flush=True)
 
 
-def bench(seconds: float, rates: list[tuple[float, float]], find_max: bool) -> int:
+def bench(seconds: float, rates: list[tuple[float, float]], find_max: bool, publish_uncalibrated: bool = False) -> int:
     """Run every rate (and ``--find-max``); print the tables."""
-    print(f"node benchmark: {seconds:g} s per rate; node `{Path(sys.executable).name} {' '.join(NODE_CMD)}`, "
+    node_cmd = [*NODE_CMD, "-p", "publish_uncalibrated:=true"] if publish_uncalibrated else NODE_CMD
+    print(f"node benchmark: {seconds:g} s per rate; node `{Path(sys.executable).name} {' '.join(node_cmd)}`, "
           f"publisher and counter in processes of their own; {os.cpu_count()} CPUs", flush=True)
     t0 = time.monotonic()
     results = []
     for imu_rate, mag_rate in rates:
-        results.append(run(seconds, imu_rate, mag_rate))
+        results.append(run(seconds, imu_rate, mag_rate, node_cmd))
         _progress(results[-1])
     print_tables(results)
     if find_max:
@@ -489,7 +499,7 @@ def bench(seconds: float, rates: list[tuple[float, float]], find_max: bool) -> i
         best: float | None = None
         found = []
         for imu_rate in FIND_MAX_RATES:
-            r = run(seconds, float(imu_rate), 100.0)
+            r = run(seconds, float(imu_rate), 100.0, node_cmd)
             found.append(r)
             _progress(r)
             if "counter" not in r or any(_lost(r, s) > 0 for s in SENSORS):
@@ -513,6 +523,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rates", default="100:100,400:100,1000:100", help="IMU:mag rates in Hz, comma-separated "
                     "(default 100:100,400:100,1000:100)")
     ap.add_argument("--find-max", action="store_true", help="then raise the IMU rate until messages are lost")
+    ap.add_argument("--publish-uncalibrated", action="store_true", help="also pass -p publish_uncalibrated:=true: the "
+                    "node publishes imu_calibrated/* from the first message (its full per-message path)")
     ap.add_argument("--publisher", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--counter", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--imu-rate", type=float, default=1000.0, help=argparse.SUPPRESS)  # the publisher's
@@ -526,7 +538,7 @@ def main(argv: list[str] | None = None) -> int:
         return publisher(args.seconds, args.imu_rate, args.mag_rate)
     if args.counter:
         return counter()
-    return bench(args.seconds, _rates(args.rates), args.find_max)
+    return bench(args.seconds, _rates(args.rates), args.find_max, args.publish_uncalibrated)
 
 
 if __name__ == "__main__":

@@ -72,12 +72,14 @@ _LEVELS = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}
 
 @dataclass
 class SensorView:
-    """The last status of one sensor from ``/calib/status``, and when it was first calibrated (demo time, s)."""
+    """The last status of one sensor from ``/calib/status``; when it was first calibrated (demo time, s) and
+    the samples it had seen then."""
 
     level: int = -1
     message: str = "waiting for /calib/status"
     values: dict[str, str] = field(default_factory=dict)
     calibrated_at: float | None = None
+    calibrated_samples: str = ""
 
     @property
     def state(self) -> str:
@@ -228,9 +230,12 @@ def _watch(children: dict[str, subprocess.Popen[bytes]], logs: dict[str, Path], 
             s = st.name.removeprefix("margcal: ")
             if s in out.views:
                 level = st.level[0] if isinstance(st.level, (bytes, bytearray)) else int(st.level)
-                view = SensorView(level, st.message, {kv.key: kv.value for kv in st.values}, out.views[s].calibrated_at)
+                old = out.views[s]
+                view = SensorView(level, st.message, {kv.key: kv.value for kv in st.values}, old.calibrated_at,
+                                  old.calibrated_samples)
                 if view.state == "calibrated" and view.calibrated_at is None:
                     view.calibrated_at = time.monotonic() - start
+                    view.calibrated_samples = view.values.get("samples_seen", "")
                 out.views[s] = view
 
     def on_calibration(s: str) -> Any:
@@ -308,8 +313,8 @@ def _report(out: _Outcome, truth_path: Path, timeout: float) -> int:
     missing = [s for s in SENSORS if out.views[s].state != "calibrated" or s not in out.cals]
     for s in SENSORS:
         view, cal = out.views[s], out.cals.get(s)
-        when = "" if view.calibrated_at is None else f" after {view.calibrated_at:.1f} s"
-        print(f"{s}: {view.state}{when} ({view.values.get('samples_seen', '0')} samples): {view.message}")
+        when = "" if view.calibrated_at is None else f" after {view.calibrated_at:.1f} s ({view.calibrated_samples} samples)"
+        print(f"{s}: {view.state}{when}: {view.message}")
         if cal is not None and s in truth:
             print("\n".join(_compare(cal, truth[s])))
     if out.failure:
