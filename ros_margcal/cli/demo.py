@@ -20,9 +20,12 @@ always terminated and waited for, also on Ctrl-C.
 
 rclpy and the message packages are an optional dependency (a ROS 2 Jazzy from PyPI wheels or a sourced setup):
 they are imported inside the functions that use them; without them the command exits 2 saying how to get them.
-The children get this process's environment, with ``AMENT_PREFIX_PATH`` set for pip-installed ROS
-(``use_venv_ament_prefix``) and ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` unless set already: the simulated
-data stays on this machine.
+The children get this process's environment, with ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` unless set already:
+the simulated data stays on this machine. The node sets ``AMENT_PREFIX_PATH`` for pip-installed ROS itself
+(``ros.environment.use_venv_ament_prefix`` in its ``main``); rclpy and the message types need no ament index here.
+This module imports nothing of ``ros`` (tests/test_layout.py: the CLI stays off that layer), so the calibration
+messages are read with ``model.calibration_file.calibration_from_yaml``, which is what
+``ros.messages.calibration_from_string`` does.
 """
 
 from __future__ import annotations
@@ -43,11 +46,9 @@ from typing import Any, TextIO
 import numpy as np
 
 from ..model.calibration import Calibration
-from ..model.calibration_file import load_calibrations, save_calibrations
+from ..model.calibration_file import calibration_from_yaml, load_calibrations, save_calibrations
 from ..model.errors import CalibrationFileError, ConfigError
 from ..recordings.recording import Recording
-from ..ros.environment import use_venv_ament_prefix
-from ..ros.messages import calibration_from_string
 from ..sim import simulation as sim
 
 __all__ = ["DEFAULT_SEED", "MOTION", "SensorView", "format_block", "register", "run", "simulate_imu"]
@@ -83,6 +84,7 @@ class SensorView:
 
     @property
     def state(self) -> str:
+        """The ``state`` value (collecting, ready, calibrated, rejected), ``-`` before the first status."""
         return self.values.get("state", "-")
 
 
@@ -129,7 +131,8 @@ class _Display:
             self.out.write(up + "".join(f"\x1b[2K{line[:width]}\n" for line in lines))
             self.drawn = len(lines)
         else:
-            self.out.write("\n".join(lines) + "\n\n")
+            self.out.write(("\n" if self.drawn else "") + "\n".join(lines) + "\n")
+            self.drawn = len(lines)
         self.out.flush()
 
 
@@ -158,9 +161,9 @@ def drive(seed: int, duration_s: float, truth_path: Path) -> int:
     from std_msgs.msg import Header
 
     imu, mag = simulate_imu(seed, duration_s)
+    assert imu.truth is not None and mag.truth is not None and imu.gyro is not None  # the simulator sets them
     save_calibrations(truth_path, {"mag": mag.truth, "accel": imu.truth}, node="margcal_demo_driver")
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))  # the demo ends us with SIGTERM: leave through finally
-    use_venv_ament_prefix()
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     node = Node("margcal_demo_driver")
     sent = [0, 0]
@@ -241,17 +244,18 @@ def _watch(children: dict[str, subprocess.Popen[bytes]], logs: dict[str, Path], 
     def on_calibration(s: str) -> Any:
         def take(msg: Any) -> None:
             try:
-                out.cals[s] = calibration_from_string(msg, sensor=s)
+                out.cals[s] = calibration_from_yaml(msg.data, sensor=s)  # ros.messages.calibration_from_string's body
             except CalibrationFileError as exc:
-                out.views[s].message = f"unreadable /calib/{s}: {exc}"
+                out.failure = f"the node published an unreadable /calib/{s}: {exc}"
         return take
 
     context = Context()
     rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)  # Ctrl-C: a KeyboardInterrupt here
-    node = Node("margcal_demo_monitor", context=context)
     executor = SingleThreadedExecutor(context=context)
+    node = None
     display = _Display(sys.stdout)
     try:
+        node = Node("margcal_demo_monitor", context=context)
         executor.add_node(node)
         latched = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE,
                              durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -262,7 +266,8 @@ def _watch(children: dict[str, subprocess.Popen[bytes]], logs: dict[str, Path], 
             executor.spin_once(timeout_sec=0.1)
             out.elapsed = time.monotonic() - start
             display.show(_screen(out.views, out.elapsed, timeout), out.elapsed)
-            if all(out.views[s].state == "calibrated" and s in out.cals for s in SENSORS) or out.elapsed > timeout:
+            if all(out.views[s].state == "calibrated" and s in out.cals for s in SENSORS) or out.elapsed > timeout \
+                    or out.failure:
                 break
             ended = {name: p.returncode for name, p in children.items() if p.poll() is not None}
             if "node" in ended or ended.get("driver", 0) != 0:
@@ -272,7 +277,8 @@ def _watch(children: dict[str, subprocess.Popen[bytes]], logs: dict[str, Path], 
         display.show(_screen(out.views, out.elapsed, timeout), out.elapsed, force=True)
     finally:
         executor.shutdown()
-        node.destroy_node()
+        if node is not None:
+            node.destroy_node()
         context.try_shutdown()
     return out
 
@@ -310,11 +316,12 @@ def _report(out: _Outcome, truth_path: Path, timeout: float) -> int:
     except (CalibrationFileError, OSError) as exc:
         truth = {}
         print(f"no simulated truth to compare with ({exc})")
+    print()
     missing = [s for s in SENSORS if out.views[s].state != "calibrated" or s not in out.cals]
     for s in SENSORS:
         view, cal = out.views[s], out.cals.get(s)
         when = "" if view.calibrated_at is None else f" after {view.calibrated_at:.1f} s ({view.calibrated_samples} samples)"
-        print(f"{s}: {view.state}{when}: {view.message}")
+        print(f"{s}: {view.state}{when}\n  status: {view.message}")
         if cal is not None and s in truth:
             print("\n".join(_compare(cal, truth[s])))
     if out.failure:
@@ -322,15 +329,18 @@ def _report(out: _Outcome, truth_path: Path, timeout: float) -> int:
         return 1
     if missing:
         for s in missing:
-            print(f"margcal demo: {s} did not calibrate within {timeout:.0f} s; its last status: "
-                  f"{out.views[s].state}: {out.views[s].message}", file=sys.stderr)
+            print(f"margcal demo: {s} did not calibrate within {timeout:.0f} s; its last status ({out.views[s].state}): "
+                  f"{out.views[s].message}", file=sys.stderr)
         return 1
     return 0
 
 
+def _interrupt(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt
+
+
 def _environment() -> dict[str, str]:
-    """This process's environment for rclpy and the children: the wheels' ament prefix, discovery on this machine."""
-    use_venv_ament_prefix()
+    """This process's environment for rclpy and the children, with discovery on this machine unless set."""
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     return dict(os.environ)
 
@@ -361,6 +371,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"margcal demo: seed {args.seed}, timeout {args.timeout:.0f} s; node log {logs['node']}, "
           f"driver log {logs['driver']}", flush=True)
     children: dict[str, subprocess.Popen[bytes]] = {}
+    previous = signal.signal(signal.SIGTERM, _interrupt)  # a kill of the demo ends its children too
     try:
         for name, cmd in commands.items():
             with logs[name].open("wb") as log:
@@ -368,6 +379,7 @@ def run(args: argparse.Namespace) -> int:
         out = _watch(children, logs, args.timeout)
     finally:
         _stop(children)
+        signal.signal(signal.SIGTERM, previous)
     return _report(out, truth_path, args.timeout)
 
 

@@ -533,6 +533,10 @@ def main(args: list[str] | None = None) -> None:
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except Exception:
+        if rclpy.ok():
+            raise
+        # a SIGTERM or Ctrl-C while the node was being built: rclpy shut the context down under it
     finally:
         executor.shutdown()
         if node is not None:

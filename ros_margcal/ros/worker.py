@@ -26,6 +26,7 @@ from __future__ import annotations
 import math
 import multiprocessing
 import queue
+import signal
 import time
 import traceback
 from typing import Any
@@ -129,6 +130,7 @@ class _Calibrators:
 def serve(inbox: Any, outbox: Any, specs: dict[str, tuple[PipelineConfig, Calibration | None]], validator: Any,
           status_period_s: float) -> None:
     """The worker process: take samples and commands from ``inbox`` until ``stop`` (see the module docstring)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole process group: the node stops us
     parent = multiprocessing.parent_process()  # the node's process (with forkserver too), via its sentinel
     cals = _Calibrators(specs, validator, outbox)
     cals.status()
