@@ -3,19 +3,23 @@
 
     source /opt/ros/jazzy/setup.bash            # or a venv with the rclpy wheels (AMENT_PREFIX_PATH is set for it)
     python3 scripts/bench_node.py [--seconds 20] [--rates 100:100,400:100,1000:100] [--find-max]
+                                  [--publish-uncalibrated] [--json figures.json]
 
 Three processes besides this one, all started afresh for each rate:
 
 - the node, exactly as users start it: ``python -m ros_margcal.ros.node --ros-args -p calibration_file:=''
   -p status_period_s:=0.5`` (its ``SingleThreadedExecutor``, its calibration worker process);
 - a publisher (this script with ``--publisher``): simulated tumbling ``sensor_msgs/Imu`` (with the gyro) on
-  ``imu/data_raw`` and ``sensor_msgs/MagneticField`` on ``imu/mag``, reliable, depth 100 (as REP-2003 asks of
-  drivers), in real time (it sleeps until the next message is due and publishes everything due; it reports how
-  late it ran), header stamps from the system clock; it starts once both the node and the counter subscribe;
+  ``imu/data_raw`` and ``sensor_msgs/MagneticField`` on ``imu/mag`` of one body (the gyro turns as the field
+  does, as on a real MARG unit; seed 3), reliable, depth 100 (as REP-2003 asks of drivers), in real time (it
+  sleeps until the next message is due and publishes everything due; it reports how late each message went out
+  and its mean publish time), header stamps from the system clock; it starts once both the node and the counter
+  subscribe (then 1 s more for the subscribers' side of discovery);
 - a counter (this script with ``--counter``): a trivial rclpy node with best-effort depth-1000 subscriptions
   (the sensor-data profile, deeper) that counts ``imu/data_raw``, ``imu/mag``, ``imu_calibrated/data_raw`` and
   ``imu_calibrated/mag`` and keeps the node's ``/calib/status``; after the publisher ends it waits until the
-  node's ``received`` stops changing (at most 3 s) and prints its counts and the final status as JSON.
+  node's ``received`` stops changing and its ``worker_backlog`` is 0 (at most 3 s; ``stable`` says which) and
+  prints its counts and the final status as JSON.
 
 Printed, per rate (``IMU:mag`` Hz) and sensor (``accel``: the Imu topic): messages published, received by the
 node (``received`` of the final status), taken by the calibrator in the worker (``samples_seen``), lost
@@ -27,7 +31,15 @@ the node, the forkserver and the calibration worker; CPU time over the wall time
 core), the worker's share of it, the counter's CPU the same way (the cost of a trivial Python subscriber on the
 same streams, measured in the same run), the ratio node/counter, and how late the publisher ran.
 ``--find-max`` then raises the IMU rate (1000, 1500, 2000, 3000, 4000 Hz, magnetometer 100 Hz) until a run
-loses messages and prints the highest rate without loss.
+loses messages and prints the highest rate without loss. The node's warnings and errors are printed after the
+tables (its whole log then stays in a temporary file, named there), and CROSSTALK when the run heard another run on the
+same ``ROS_DOMAIN_ID`` (a topic with more than one publisher, more messages received than published).
+
+This motion calibrates the magnetometer after about 15-20 s and the accelerometer after about 35-45 s, so short
+runs measure the node before it publishes ``imu_calibrated/*``; ``--publish-uncalibrated`` adds
+``-p publish_uncalibrated:=true`` so that the node publishes them from the first message (its full per-message
+path). ``--json`` writes every figure, with the node's CPU per thread, its CPU every 0.5 s and the series of
+``received`` of each status (on the same monotonic clock as ``t0``, the publisher's start).
 
 Without rclpy it says why and exits 0.
 """
@@ -45,7 +57,7 @@ import tempfile
 import threading
 import time
 from pathlib import Path
-from typing import Any, TextIO
+from typing import IO, Any
 
 import numpy as np
 
@@ -61,7 +73,7 @@ try:  # rclpy and the message packages exist only in a sourced ROS 2 environment
     from sensor_msgs.msg import Imu, MagneticField
     from std_msgs.msg import Header
 except ImportError as exc:
-    rclpy = None
+    rclpy = None  # type: ignore[assignment]
     MISSING = f"{exc}"
 else:
     MISSING = ""
@@ -78,7 +90,8 @@ DISCOVERY_TIMEOUT_S = 60.0
 SETTLE_S = 1.0
 """After the publishers see their subscribers, the subscribers' side of discovery gets this long, s."""
 STABLE_TIMEOUT_S = 3.0
-"""After the publisher ends, the counter waits at most this long for the node's ``received`` to stop changing, s."""
+"""After the publisher ends, the counter waits at most this long for the node's ``received`` to stop changing
+(and its ``worker_backlog`` to reach 0), s."""
 NODE_CMD = ["-m", "ros_margcal.ros.node", "--ros-args", "-p", "calibration_file:=''", "-p", "status_period_s:=0.5"]
 """The node's command line after the interpreter (the ``''`` reaches rcl as an empty YAML string)."""
 CLK_TCK = os.sysconf("SC_CLK_TCK")
@@ -93,6 +106,7 @@ def publisher(seconds: float, imu_rate: float, mag_rate: float) -> int:
     motion = tumbling_motion(seconds, max(imu_rate, mag_rate), rng)  # one body: the gyro turns as the field does
     imu = sim.tumbling(sim.random_sensor(rng, "accel"), seconds, imu_rate, rng, motion=motion)
     mag = sim.magnetometer_stream(sim.random_sensor(rng, "mag"), seconds, mag_rate, rng, motion=motion)
+    assert imu.gyro is not None  # tumbling() simulates the gyro
     acc, gyr, mxyz = imu.raw.tolist(), imu.gyro.tolist(), mag.raw.tolist()
     times = np.concatenate([np.asarray(imu.t, float), np.asarray(mag.t, float)])
     kinds = np.concatenate([np.zeros(len(imu.t), int), np.ones(len(mag.t), int)])
@@ -211,11 +225,16 @@ def counter() -> int:
                            ("imu_calibrated/mag", MagneticField)):
             node.create_subscription(cls, topic, make_counter(topic), qos)
         statuses: list[dict[str, dict[str, Any]]] = []
+        series: list[list[Any]] = []  # (monotonic time, {sensor: received}) of each status
         worst: dict[str, dict[str, float]] = {}
+        publishers: dict[str, int] = {}  # the most publishers seen on each topic: more than 1 = another run's
 
         def on_status(msg: Any) -> None:
+            for topic in (*counts, "/calib/status"):
+                publishers[topic] = max(publishers.get(topic, 0), node.count_publishers(topic))
             st = _parse_status(msg)
             statuses.append(st)
+            series.append([time.monotonic(), {s: kv.get("received") for s, kv in st.items()}])
             for s, kv in st.items():
                 w = worst.setdefault(s, {"callback_max_ms": 0.0, "callback_p99_ms": 0.0})
                 for key in w:
@@ -239,15 +258,16 @@ def counter() -> int:
         stopped, seen = time.monotonic(), len(statuses)
         stable = False
         while time.monotonic() - stopped < STABLE_TIMEOUT_S:  # until the node's `received` stops changing
-            executor.spin_once(timeout_sec=0.05)
+            executor.spin_once(timeout_sec=0.05)  # (and the worker took them all: its status lags the node's)
             if len(statuses) > seen and len(statuses) >= 2:
                 rx = [{s: kv.get("received") for s, kv in st.items()} for st in statuses[-2:]]
-                if rx[0] == rx[1]:
+                if rx[0] == rx[1] and all(kv.get("worker_backlog") == "0" for kv in statuses[-1].values()):
                     stable = True
                     break
         rates = {t: (counts[t] - 1) / (last[t] - first[t]) if counts[t] > 1 and last[t] > first[t] else 0.0 for t in counts}
         print(json.dumps({"counts": counts, "rate_hz": rates, "status": statuses[-1] if statuses else {},
-                          "statuses": len(statuses), "worst": worst, "stable": stable}), flush=True)
+                          "statuses": len(statuses), "worst": worst, "stable": stable, "series": series,
+                          "publishers": publishers}), flush=True)
         return 0
     finally:
         executor.shutdown()
@@ -288,6 +308,24 @@ def process_tree(root: int) -> dict[int, tuple[int, int]]:
     return out
 
 
+def _threads(pid: int) -> dict[str, float]:
+    """CPU seconds of the threads of ``pid`` by thread name (``/proc/<pid>/task``; threads of one name summed)."""
+    out: dict[str, float] = {}
+    try:
+        tids = os.listdir(f"/proc/{pid}/task")
+    except OSError:
+        return out
+    for tid in tids:
+        try:
+            text = Path(f"/proc/{pid}/task/{tid}/stat").read_text()
+        except OSError:
+            continue
+        name = "main" if tid == str(pid) else text[text.index("(") + 1:text.rindex(")")]
+        rest = text[text.rindex(")") + 2:].split()
+        out[name] = out.get(name, 0.0) + (int(rest[11]) + int(rest[12])) / CLK_TCK
+    return out
+
+
 def _cpu(root: int) -> tuple[float, float]:
     """(CPU seconds of the whole tree under ``root``, of its descendants only)."""
     tree = process_tree(root)
@@ -299,12 +337,12 @@ def _cpu(root: int) -> tuple[float, float]:
 class Lines:
     """The lines a child writes to a pipe, read by a thread (a read with a timeout)."""
 
-    def __init__(self, pipe: TextIO) -> None:
+    def __init__(self, pipe: IO[str]) -> None:
         self._q: queue.Queue[str | None] = queue.Queue()
         self._thread = threading.Thread(target=self._read, args=(pipe,), daemon=True)
         self._thread.start()
 
-    def _read(self, pipe: TextIO) -> None:
+    def _read(self, pipe: IO[str]) -> None:
         for line in pipe:
             self._q.put(line.rstrip("\n"))
         self._q.put(None)
@@ -366,9 +404,22 @@ def run(seconds: float, imu_rate: float, mag_rate: float, node_cmd: list[str]) -
         if line != "START":
             out["error"] = f"the publisher did not start: {line!r} (exit code {pub.poll()}); node log {log.name}"
             return out
-        wall0, (node0, worker0), (cnt0, _) = time.monotonic(), _cpu(node.pid), _cpu(cnt.pid)
+        wall0, (node0, worker0), (cnt0, _), thr0 = time.monotonic(), _cpu(node.pid), _cpu(cnt.pid), _threads(node.pid)
+        out["cpu_series"] = series = []  # (time, node tree CPU s, node main thread CPU s, counter CPU s)
+        sampling = threading.Event()
+
+        def sample() -> None:
+            while not sampling.wait(0.5):
+                series.append([time.monotonic(), _cpu(node.pid)[0], _threads(node.pid).get("main", 0.0), _cpu(cnt.pid)[0]])
+
+        sampler = threading.Thread(target=sample, daemon=True)
+        sampler.start()
         line = pub_lines.next(seconds + 60.0)
-        wall1, (node1, worker1), (cnt1, _) = time.monotonic(), _cpu(node.pid), _cpu(cnt.pid)
+        sampling.set()
+        sampler.join()
+        wall1, (node1, worker1), (cnt1, _), thr1 = time.monotonic(), _cpu(node.pid), _cpu(cnt.pid), _threads(node.pid)
+        out["t0"] = wall0  # the counter's status series is on the same (system-wide monotonic) clock
+        out["node_threads"] = {name: 100 * (v - thr0.get(name, 0.0)) / (wall1 - wall0) for name, v in thr1.items()}
         if line is None or not line.startswith("{"):
             out["error"] = f"the publisher ended without its counts: {line!r} (exit code {pub.poll()})"
             return out
@@ -391,9 +442,27 @@ def run(seconds: float, imu_rate: float, mag_rate: float, node_cmd: list[str]) -
         _end(node)
         log.close()
         out["run_s"] = time.monotonic() - t_start
-        text = Path(log.name).read_text(errors="replace").splitlines()
+        try:
+            text = Path(log.name).read_text(errors="replace").splitlines()
+        except OSError:
+            text = []
         out["log_problems"] = [ln for ln in text if "[WARN]" in ln or "[ERROR]" in ln or "Traceback" in ln]
         out["log_calibrated"] = [ln for ln in text if "calibrated" in ln.lower() and "[INFO]" in ln]
+        if not out["log_problems"] and "error" not in out:
+            Path(log.name).unlink(missing_ok=True)  # kept only when it has something to say
+            out["log"] = ""
+
+
+def crosstalk(r: dict[str, Any]) -> str:
+    """Why the run heard another run (more than one publisher on a topic, or more received than published), or ''."""
+    if "counter" not in r:
+        return ""
+    extra = {t: n for t, n in r["counter"].get("publishers", {}).items() if n > 1}
+    more = [s for s in SENSORS if _lost(r, s) < 0]
+    if not extra and not more:
+        return ""
+    return (f"another run on ROS_DOMAIN_ID={os.environ.get('ROS_DOMAIN_ID', '0')}: publishers {extra or '-'}, "
+            f"more received than published: {more or '-'}; this run's figures are void")
 
 
 def _lost(r: dict[str, Any], sensor: str) -> int:
@@ -456,6 +525,10 @@ def print_tables(results: list[dict[str, Any]]) -> None:
         rate = f"{r['imu_rate']:.0f}:{r['mag_rate']:.0f}"
         if "error" in r:
             print(f"{rate}: FAILED: {r['error']}")
+        if crosstalk(r):
+            print(f"{rate}: CROSSTALK: {crosstalk(r)}")
+        if "counter" in r and not r["counter"]["statuses"]:
+            print(f"{rate}: no /calib/status came from the node: its figures are '?' (log {r['log']})")
         if r.get("node_alive") is False:
             print(f"{rate}: the node had ended before the run was over (log {r['log']})")
         for ln in r.get("log_problems", [])[:5]:
@@ -479,16 +552,19 @@ def _progress(r: dict[str, Any]) -> None:
         return
     lost = {s: _lost(r, s) for s in SENSORS}
     print(f"  {rate}: lost accel {lost['accel']}, mag {lost['mag']}; node CPU {r['cpu']['node']:.1f} %, "
-          f"counter {r['cpu']['counter']:.1f} %; {r['run_s']:.0f} s", flush=True)
+          f"counter {r['cpu']['counter']:.1f} %; {r['run_s']:.0f} s" + (" (CROSSTALK: void)" if crosstalk(r) else ""),
+          flush=True)
 
 
-def bench(seconds: float, rates: list[tuple[float, float]], find_max: bool, publish_uncalibrated: bool = False) -> int:
+def bench(seconds: float, rates: list[tuple[float, float]], find_max: bool, publish_uncalibrated: bool = False,
+          json_path: str = "") -> int:
     """Run every rate (and ``--find-max``); print the tables."""
     node_cmd = [*NODE_CMD, "-p", "publish_uncalibrated:=true"] if publish_uncalibrated else NODE_CMD
     print(f"node benchmark: {seconds:g} s per rate; node `{Path(sys.executable).name} {' '.join(node_cmd)}`, "
           f"publisher and counter in processes of their own; {os.cpu_count()} CPUs", flush=True)
     t0 = time.monotonic()
-    results = []
+    results: list[dict[str, Any]] = []
+    found: list[dict[str, Any]] = []
     for imu_rate, mag_rate in rates:
         results.append(run(seconds, imu_rate, mag_rate, node_cmd))
         _progress(results[-1])
@@ -497,12 +573,11 @@ def bench(seconds: float, rates: list[tuple[float, float]], find_max: bool, publ
         print(f"\nfind-max: IMU rates {', '.join(str(r) for r in FIND_MAX_RATES)} Hz with the magnetometer at 100 Hz, "
               "until a run loses messages", flush=True)
         best: float | None = None
-        found = []
         for imu_rate in FIND_MAX_RATES:
             r = run(seconds, float(imu_rate), 100.0, node_cmd)
             found.append(r)
             _progress(r)
-            if "counter" not in r or any(_lost(r, s) > 0 for s in SENSORS):
+            if "counter" not in r or crosstalk(r) or any(_lost(r, s) > 0 for s in SENSORS):
                 break
             best = float(imu_rate)
         print_tables(found)
@@ -510,8 +585,13 @@ def bench(seconds: float, rates: list[tuple[float, float]], find_max: bool, publ
         if "pub" in top and top["pub"]["late_end_ms"] > 0.1 * seconds * 1e3:
             print(f"note: the publisher ended {top['pub']['late_end_ms'] / 1e3:.1f} s late at {top['imu_rate']:.0f} Hz: "
                   "it could not keep the rate")
+        if crosstalk(top):
+            print("note: the last run heard another run (CROSSTALK): the search stopped there")
         print("highest IMU rate without loss: " + ("none of them" if best is None else f"{best:.0f} Hz")
               + (" (the highest tried)" if best == FIND_MAX_RATES[-1] else ""))
+    if json_path:
+        Path(json_path).write_text(json.dumps({"seconds": seconds, "node_cmd": node_cmd, "runs": results,
+                                               "find_max": found}, indent=1))
     print(f"\ntotal {time.monotonic() - t0:.0f} s")
     return 0
 
@@ -523,6 +603,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rates", default="100:100,400:100,1000:100", help="IMU:mag rates in Hz, comma-separated "
                     "(default 100:100,400:100,1000:100)")
     ap.add_argument("--find-max", action="store_true", help="then raise the IMU rate until messages are lost")
+    ap.add_argument("--json", default="", help="also write every figure of every run (and the status series) here")
     ap.add_argument("--publish-uncalibrated", action="store_true", help="also pass -p publish_uncalibrated:=true: the "
                     "node publishes imu_calibrated/* from the first message (its full per-message path)")
     ap.add_argument("--publisher", action="store_true", help=argparse.SUPPRESS)
@@ -538,7 +619,7 @@ def main(argv: list[str] | None = None) -> int:
         return publisher(args.seconds, args.imu_rate, args.mag_rate)
     if args.counter:
         return counter()
-    return bench(args.seconds, _rates(args.rates), args.find_max, args.publish_uncalibrated)
+    return bench(args.seconds, _rates(args.rates), args.find_max, args.publish_uncalibrated, args.json)
 
 
 if __name__ == "__main__":

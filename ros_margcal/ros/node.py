@@ -19,9 +19,9 @@ calibration file now), ``~/refit`` (validate and fit now; the validator and guar
 Threads and processes: a fit holds the interpreter (the GIL) for tens of milliseconds to seconds, so no
 thread of this process may run one. The sample callbacks only convert the message, choose its time,
 publish the calibrated message with the calibration the node holds and queue the sample; a timer
-(``_pump``, every 10 ms) hands the queued samples to the calibrators in a worker process
-(``worker.CalibrationWorker``: the gate, buffer, validator, fits, change detection, the gyro pairing)
-and takes back calibrations, events, statuses and service answers. ``~/reset`` and ``~/refit`` await
+(``_pump``, every 50 ms: an idle executor wake-up costs about 1 ms of CPU) hands the queued samples to
+the calibrators in a worker process (``worker.CalibrationWorker``: the gate, buffer, validator, fits,
+change detection, the gyro pairing) and takes back calibrations, events, statuses and service answers. ``~/reset`` and ``~/refit`` await
 the worker's answer without blocking the executor. ``main`` spins a ``SingleThreadedExecutor``: the
 ``MultiThreadedExecutor`` of Jazzy's rclpy (7.1.6) cycles its wait loop at up to a full core and loses
 most of a 100 Hz stream (rclpy issue 1452, fixed after Jazzy), and nothing here needs a second thread.
@@ -70,6 +70,7 @@ from ..model.calibration_file import load_calibrations, save_calibrations
 from ..model.errors import CalibrationFileError, ConfigError
 from ..stream.config import PipelineConfig
 from ..stream.status import EventKind, Level, State, Status
+from ..stream.units import unit_scale
 from ..validation.shipped import load_validator
 from .environment import use_venv_ament_prefix
 from .messages import calibrate_imu, calibrate_mag, calibration_to_string, imu_to_numpy, mag_to_numpy, status_to_diagnostic
@@ -127,8 +128,9 @@ _ACCEL_GATE: dict[str, tuple[float, float, str]] = {
 }
 
 
-PUMP_PERIOD_S = 0.01
-"""How often queued samples go to the worker and its answers are read, s."""
+PUMP_PERIOD_S = 0.05
+"""How often queued samples go to the worker and its answers are read, s (each wake-up of an idle executor
+costs about 1 ms of CPU in rclpy: 10 ms cost 10 % of a core with no data at all)."""
 REQUEST_TIMEOUT_S = 60.0
 """A service waits this long for the worker's answer, s."""
 WORKER_RESTART_S = 5.0
@@ -137,6 +139,13 @@ CALLBACK_TIMES = 2000
 """Sample callback durations kept per sensor for the status's p50/p99/max."""
 RATE_WINDOW_S = 5.0
 """The received rate in the status is averaged over about this long, s."""
+DROP_WINDOW_S = 2.0
+"""The status warns when the calibrator dropped more than ``DROP_WARN`` of the samples of about this long, s ..."""
+DROP_WARN = 0.5
+"""... (of at least ``DROP_MIN_SAMPLES`` samples; field disturbances, the ``outlier`` drops, not counted)."""
+DROP_MIN_SAMPLES = 10
+OTHER_FRAME_S = 10.0
+"""The status flags messages of another frame_id on a sensor's topic for this long after the last one, s."""
 
 
 def _fdesc(lo: float, hi: float, text: str, read_only: bool = False) -> ParameterDescriptor:
@@ -154,9 +163,32 @@ def _level_bytes(level: int) -> bytes:
     return bytes([int(level)])
 
 
-def _publishable(v: Any) -> bool:
-    """A vector worth publishing calibrated: finite and not all zero (a failed read, a dead sensor)."""
-    return bool(np.isfinite(v).all() and np.any(v != 0.0))
+def _limits(cfg: PipelineConfig) -> tuple[float, float]:
+    """The raw norms the calibrator's intake takes (``stream/intake.py``); learnt ones (counts) are not known here."""
+    if cfg.learn_magnitude_samples > 0:
+        return 0.0, math.inf
+    return cfg.min_magnitude, cfg.max_magnitude
+
+
+def _publishable(v: Any, limits: tuple[float, float]) -> bool:
+    """A raw vector worth publishing calibrated: finite, not zero (a failed read, a dead sensor) and within the
+    magnitudes the calibrator takes (a driver in another unit): the calibrator refuses the others too."""
+    n = math.sqrt(float(v[0]) ** 2 + float(v[1]) ** 2 + float(v[2]) ** 2)
+    return limits[0] < n <= limits[1]  # False for NaN and Inf
+
+
+def _implausible(cal: Calibration, sensor: str, cfg: PipelineConfig) -> str:
+    """Why a calibration read from a file does not fit this node's sensor (empty when it does): another sensor,
+    another unit (a file of ``margcal calibrate --unit uT`` would publish fields 1e6 too large) or a field norm
+    beyond the guard rail."""
+    if cal.sensor and cal.sensor != sensor:
+        return f"it is a calibration of the {cal.sensor}"
+    if cal.unit and unit_scale(sensor, cal.unit) != unit_scale(sensor, cfg.unit):
+        return (f"it is in {cal.unit}, the node's {sensor} messages are in {cfg.unit} (REP-103); "
+                f"calibrate the recording in {cfg.unit}")
+    if not cfg.norm_min <= cal.norm <= cfg.norm_max:
+        return f"its field norm {cal.norm:.6g} {cfg.unit} is outside [{cfg.norm_min:.6g}, {cfg.norm_max:.6g}] {cfg.unit}"
+    return ""
 
 
 class _Traffic:
@@ -166,7 +198,25 @@ class _Traffic:
         self.received = 0
         self.last_rx: float | None = None
         self.times: deque[float] = deque(maxlen=CALLBACK_TIMES)
+        self.frame: str | None = None  # the frame_id the sensor is calibrated in: the first one seen
+        self.other_frames: dict[str, int] = {}  # messages of other frame_ids, ignored
+        self.other_frame_rx = -math.inf
         self._counts: deque[tuple[float, int]] = deque()
+        self._drops: deque[tuple[float, int, dict[str, int]]] = deque()
+
+    def dropping(self, now: float, st: Status) -> str:
+        """What the calibrator drops when it drops more than ``DROP_WARN`` of the recent samples, else ''."""
+        drops = self._drops
+        drops.append((now, st.samples_seen, {k: v for k, v in st.dropped.items() if k != "outlier"}))
+        while len(drops) > 2 and now - drops[1][0] >= DROP_WINDOW_S:
+            drops.popleft()
+        (_, n0, d0), (_, n1, d1) = drops[0], drops[-1]
+        delta = {k: v - d0.get(k, 0) for k, v in d1.items() if v > d0.get(k, 0)}
+        seen = n1 - n0
+        if seen < DROP_MIN_SAMPLES or sum(delta.values()) <= DROP_WARN * seen:
+            return ""
+        why = ", ".join(f"{k} {v}" for k, v in sorted(delta.items(), key=lambda kv: -kv[1]))
+        return f"dropping {100 * sum(delta.values()) / seen:.0f} % of the samples ({why} of the last {seen})"
 
     def tick(self, now: float) -> float:
         """Record the count at ``now`` (each status); the rate over about ``RATE_WINDOW_S``, Hz."""
@@ -190,8 +240,9 @@ class MargCalNode(Node):
     def __init__(self, node_name: str = "margcal", **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
         log = self.get_logger()
-        self.declare_parameter("calibration_file", str(Path.home() / ".ros" / "margcal" / "calibration.yaml"),
-                               ParameterDescriptor(description="calibration YAML, read at start, written atomically; '' = none"))
+        self.declare_parameter("calibration_file", "auto", ParameterDescriptor(
+            description="calibration YAML, read at start, written atomically; 'auto' = ~/.ros/margcal/<node>.yaml "
+                        "(the node's namespace and name: each node its own), '' = none"))
         self.declare_parameter("autosave", True, ParameterDescriptor(description="write the file after each new calibration"))
         self.declare_parameter("publish_uncalibrated", False,
                                ParameterDescriptor(description="publish raw values on the calibrated topics until calibrated"))
@@ -213,15 +264,14 @@ class MargCalNode(Node):
             log.error(f"stamp_source {mode!r} is not one of {STAMP_SOURCES}; using 'auto'")
             mode = "auto"
         self._stamps = {"mag": StampSource(mode, "imu/mag"), "accel": StampSource(mode, "imu/data_raw")}
-        self._frame: dict[str, str] = dict.fromkeys(SENSORS, "")
         self._traffic = {s: _Traffic() for s in SENSORS}
+        self._limits: dict[str, tuple[float, float]] = {}
         self._batch: list[tuple[Any, ...]] = []
         self._calibration: dict[str, Calibration | None] = {}
         self._configs: dict[str, PipelineConfig] = {}
         self._status: dict[str, Status] = {}
         self._requests: dict[int, tuple[Future, float]] = {}
         self._save_lock = threading.Lock()
-        loaded = self._load_file()
         validator = self._load_validator()
         latched = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE,
                              durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -230,9 +280,11 @@ class MargCalNode(Node):
             enabled = self.declare_parameter(f"{s}.enabled", True, ParameterDescriptor(
                 description=f"calibrate the {s} (read at start)", read_only=True)).value
             cfg = self._declare_sensor(s)
-            if not enabled:
-                continue
-            self._configs[s] = cfg
+            if enabled:
+                self._configs[s] = cfg
+        loaded = self._load_file()
+        for s, cfg in self._configs.items():
+            self._limits[s] = _limits(cfg)
             self._calibration[s] = loaded.get(s)
             self._status[s] = Status(s, Level.WARN, State.CALIBRATED if s in loaded else State.COLLECTING,
                                      "starting the calibration worker", 0.0, 0, 0, 0)
@@ -347,7 +399,7 @@ class MargCalNode(Node):
         t, v = mag_to_numpy(msg)
         self._take("mag", t, v, None, msg.header.frame_id)
         cal = self._calibration["mag"]
-        if (cal is not None or self._publish_raw) and _publishable(v):
+        if (cal is not None or self._publish_raw) and _publishable(v, self._limits["mag"]) and self._frame_ok("mag", msg):
             self._pub_mag.publish(calibrate_mag(msg, cal))
         self._traffic["mag"].times.append(time.perf_counter() - t0)
 
@@ -357,7 +409,7 @@ class MargCalNode(Node):
         self._take("accel", t, acc, gyro, msg.header.frame_id)
         if "accel" in self._configs:
             cal = self._calibration["accel"]
-            if (cal is not None or self._publish_raw) and _publishable(acc):
+            if (cal is not None or self._publish_raw) and _publishable(acc, self._limits["accel"]) and self._frame_ok("accel", msg):
                 self._pub_imu.publish(calibrate_imu(msg, cal))
         self._traffic["accel"].times.append(time.perf_counter() - t0)
 
@@ -367,13 +419,22 @@ class MargCalNode(Node):
         traffic = self._traffic[s]
         traffic.received += 1
         traffic.last_rx = now
-        self._frame[s] = frame_id
+        if traffic.frame is None:
+            traffic.frame = frame_id
+        elif frame_id != traffic.frame:  # a second sensor on the topic: pooled, it would spoil both calibrations
+            traffic.other_frames[frame_id] = traffic.other_frames.get(frame_id, 0) + 1
+            traffic.other_frame_rx = now
+            return
         src = self._stamps[s]
         t = src.choose(t, self._now_s)
         if src.warning is not None:
             self.get_logger().warning(src.pop_warning() or "")
         g = (math.nan,) * 3 if gyro is None else (float(gyro[0]), float(gyro[1]), float(gyro[2]))
         self._batch.append((s, t, float(v[0]), float(v[1]), float(v[2]), *g, frame_id, now))
+
+    def _frame_ok(self, s: str, msg: Any) -> bool:
+        """True when the message is of the frame the sensor is calibrated in (see ``_take``)."""
+        return msg.header.frame_id == self._traffic[s].frame
 
     def _now_s(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9
@@ -435,7 +496,24 @@ class MargCalNode(Node):
 
     def _path(self) -> Path | None:
         p = str(self.get_parameter("calibration_file").value)
+        if p == "auto":
+            return Path.home() / ".ros" / "margcal" / (self.get_fully_qualified_name().strip("/").replace("/", ".") + ".yaml")
         return Path(p).expanduser() if p else None
+
+    def _set_aside(self) -> str:
+        """After a reset: move the calibration file to ``<file>.reset`` so a restart starts uncalibrated too."""
+        path = self._path()
+        if path is None or not path.exists():
+            return ""
+        aside = path.with_name(path.name + ".reset")
+        try:
+            with self._save_lock:
+                path.replace(aside)
+        except OSError as exc:
+            self.get_logger().error(f"cannot set {path} aside: {exc}; a restart would load it")
+            return f"; cannot set {path} aside: {exc}"
+        self.get_logger().info(f"reset: {path} set aside as {aside}")
+        return f"; {path} set aside as {aside}"
 
     def _load_file(self) -> dict[str, Any]:
         path = self._path()
@@ -447,8 +525,17 @@ class MargCalNode(Node):
         except CalibrationFileError as exc:
             self.get_logger().error(f"refusing calibration file {path}: {exc}; starting UNCALIBRATED")
             return {}
-        self.get_logger().info(f"loaded calibrations {sorted(cals)} from {path}")
-        return cals
+        usable = {}
+        for s, cal in cals.items():
+            if s not in self._configs:
+                continue
+            why = _implausible(cal, s, self._configs[s])
+            if why:
+                self.get_logger().error(f"refusing the {s} calibration of {path}: {why}; the {s} starts UNCALIBRATED")
+            else:
+                usable[s] = cal
+        self.get_logger().info(f"loaded calibrations {sorted(usable)} from {path}")
+        return usable
 
     def _load_validator(self) -> Any:
         """The validator named by ``validator_file``; None (the shipped one) when unset or untrustworthy."""
@@ -491,7 +578,12 @@ class MargCalNode(Node):
     async def _srv_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         for s in self._calibration:
             self._calibration[s] = None  # nothing more is published with the old calibration
-        return await self._ask_worker("reset", response)
+        for traffic in self._traffic.values():
+            traffic.frame, traffic.other_frames = None, {}
+        aside = self._set_aside()
+        response = await self._ask_worker("reset", response)
+        response.message += aside
+        return response
 
     def _srv_save(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         response.success, response.message = self._save()
@@ -511,8 +603,19 @@ class MargCalNode(Node):
             traffic = self._traffic[s]
             if traffic.last_rx is not None and now - traffic.last_rx > stale:
                 st = replace(st, level=Level.STALE, message=f"no samples for {now - traffic.last_rx:.0f} s; {st.message}")
-            msg = status_to_diagnostic(st, DiagnosticStatus, KeyValue, level_encoder=_level_bytes, hardware_id=self._frame[s])
-            extra = [*traffic.values(traffic.tick(now)), ("worker_backlog", str(max(traffic.received - st.samples_seen, 0))),
+            warn = traffic.dropping(now, st)
+            if now - traffic.other_frame_rx <= OTHER_FRAME_S:
+                topic = "imu/mag" if s == "mag" else "imu/data_raw"
+                others = ", ".join(f"{f!r} ({n} messages)" for f, n in sorted(traffic.other_frames.items()))
+                warn = "; ".join(x for x in (warn, f"{topic} carries other frames than {traffic.frame!r}: {others}, "
+                                             "ignored (one sensor per topic)") if x)
+            if warn:
+                st = replace(st, level=max(st.level, Level.WARN), message=f"{warn}; {st.message}")
+            msg = status_to_diagnostic(st, DiagnosticStatus, KeyValue, level_encoder=_level_bytes,
+                                       hardware_id=traffic.frame or "")
+            ignored = sum(traffic.other_frames.values())
+            extra = [*traffic.values(traffic.tick(now)), ("ignored_other_frames", str(ignored)),
+                     ("worker_backlog", str(max(traffic.received - ignored - st.samples_seen, 0))),
                      ("worker_restarts", str(self._worker.restarts))]
             msg.values.extend(KeyValue(key=k, value=v) for k, v in extra)
             arr.status.append(msg)
