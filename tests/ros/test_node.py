@@ -108,7 +108,10 @@ class Harness:
         """Publish the recording (every header stamped ``stamp`` when given), spinning until the node took each
         message: one executor serves the node and the peer's four subscribers, so each message needs several
         callbacks before the next one (a publisher in another process needs none of this: test_node_process)."""
-        msgs = mag_stream(self.c, rec.t, rec.raw) if stamp is None else (mag_msg(self.c, stamp, v) for v in rec.raw)
+        self.send(mag_stream(self.c, rec.t, rec.raw) if stamp is None else (mag_msg(self.c, stamp, v) for v in rec.raw))
+
+    def send(self, msgs: Any) -> None:
+        """Publish MagneticField messages one by one, each once the node took the one before (see ``publish``)."""
         start = self.node.received["mag"]
         for k, msg in enumerate(msgs, start=1):
             self.pub_mag.publish(msg)
@@ -322,3 +325,104 @@ def test_stamp_source_with_a_constant_header_stamp(context: Context, classes: Me
 def _head(rec: sim.Recording, n: int) -> sim.Recording:
     """The first ``n`` samples of a recording (times and raw values are all the harness uses)."""
     return sim.Recording(t=rec.t[:n], raw=rec.raw[:n])
+
+
+# -- hostile input (issue 26): nothing wrong is published or loaded ------------------------------------------------
+
+
+def _calibrate(harness: Harness, stream: sim.Recording) -> Calibration:
+    harness.publish(stream)
+    assert harness.spin_until(lambda: harness.node.calibrations["mag"] is not None, 10.0)
+    return harness.node.calibrations["mag"]
+
+
+@pytest.mark.parametrize("case", ["uT", "accel", "norm"])
+def test_a_calibration_file_that_does_not_fit_the_sensor_is_refused(context: Context, classes: MessageClasses,
+                                                                   tmp_path: Path, case: str) -> None:
+    """A file of another unit (a `margcal calibrate --unit uT` file would publish fields 1e6 too large), of the
+    accelerometer under `mag`, or with an implausible field norm: refused, the node starts uncalibrated."""
+    path = tmp_path / "cal.yaml"
+    cal = {"uT": Calibration.identity(50.0, sensor="mag", unit="uT"),
+           "accel": Calibration.identity(9.81, sensor="accel", unit="m/s^2"),
+           "norm": Calibration.identity(5e-3, sensor="mag", unit="T")}[case]
+    save_calibrations(path, {"mag": cal})
+    h = Harness(context, classes, path)
+    try:
+        h.spin_until(lambda: False, 0.5)
+        assert not h.calibrations and h.node.calibrations["mag"] is None
+        assert h.spin_until(lambda: h.last_status().message.startswith("collecting") or "no samples" in h.last_status().message, 5.0)
+    finally:
+        h.close()
+
+
+def test_refused_samples_are_not_published(harness: Harness, stream: sim.Recording) -> None:
+    """Once calibrated: a zero vector (a failed read), NaN, and a value beyond the intake's magnitude (gauss numbers
+    sent as tesla) are not published calibrated; a good sample still is."""
+    _calibrate(harness, stream)
+    harness.spin_until(lambda: False, 0.3)
+    before = len(harness.calibrated)
+    t = float(stream.t[-1]) + 1.0
+    bad = [[0.0, 0.0, 0.0], [float("nan"), 1e-5, 2e-5], [0.2, 0.3, 0.4]]
+    harness.send(mag_msg(harness.c, t + 0.01 * k, v) for k, v in enumerate(bad))
+    harness.spin_until(lambda: False, 0.3)
+    assert len(harness.calibrated) == before
+    harness.send([mag_msg(harness.c, t + 1.0, stream.raw[0])])
+    assert harness.spin_until(lambda: len(harness.calibrated) == before + 1, 2.0)
+
+
+def test_status_leaves_ok_while_samples_are_dropped(harness: Harness, stream: sim.Recording) -> None:
+    """Calibrated, then 2 s of gauss numbers published as tesla: the status warns that samples are dropped and
+    why; none of them is published."""
+    _calibrate(harness, stream)
+    harness.spin_until(lambda: harness.last_status().level == bytes([0]), 3.0)
+    before = len(harness.calibrated)
+    t = float(stream.t[-1]) + 1.0
+    harness.send(mag_msg(harness.c, t + 0.01 * k, 1e4 * v) for k, v in enumerate(stream.raw[:200]))
+    harness.status.clear()
+    assert harness.spin_until(lambda: bool(harness.status) and "dropping" in harness.last_status().message, 5.0)
+    st = harness.last_status()
+    assert st.level == bytes([1]) and "magnitude" in st.message
+    assert len(harness.calibrated) == before
+
+
+def test_a_second_frame_on_the_topic_is_ignored_and_flagged(harness: Harness, stream: sim.Recording) -> None:
+    """Two magnetometers on imu/mag told apart by frame_id: the first frame is calibrated, the other is neither
+    pooled nor published, and the status names it."""
+    msgs = []
+    for k, (t, v) in enumerate(zip(stream.t, stream.raw, strict=True)):
+        msgs.append(mag_msg(harness.c, float(t), v, frame_id="imu_link"))
+        if k % 2 == 0:  # another sensor's field: offset by 30 uT
+            msgs.append(mag_msg(harness.c, float(t) + 0.005, v + 3e-5, frame_id="mag2_link"))
+    harness.send(msgs)
+    assert harness.spin_until(lambda: harness.node.calibrations["mag"] is not None, 10.0)
+    cal, truth = harness.node.calibrations["mag"], stream.truth
+    assert np.linalg.norm(cal.offset - truth.offset) < 0.02 * truth.norm  # not pulled toward the other sensor
+    harness.status.clear()
+    assert harness.spin_until(lambda: bool(harness.status) and "other frames" in harness.last_status().message, 5.0)
+    kv = {x.key: x.value for x in harness.last_status().values}
+    assert int(kv["ignored_other_frames"]) == (len(stream) + 1) // 2 and "mag2_link" in harness.last_status().message
+    assert harness.calibrated and {m.header.frame_id for m in harness.calibrated} == {"imu_link"}
+
+
+def test_reset_sets_the_file_aside_and_the_default_file_is_the_nodes(context: Context, classes: MessageClasses,
+                                                                      stream: sim.Recording, tmp_path: Path,
+                                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    """calibration_file 'auto' is ~/.ros/margcal/<node>.yaml; after ~/reset the file is set aside, so a restart
+    starts uncalibrated too."""
+    monkeypatch.setenv("HOME", str(tmp_path))
+    h = Harness(context, classes, tmp_path / "unused.yaml", calibration_file="auto")
+    path = tmp_path / ".ros" / "margcal" / "margcal.yaml"
+    try:
+        _calibrate(h, stream)
+        assert h.spin_until(path.exists, 3.0), "autosave wrote no file at the node's own path"
+        res = h.call("reset")
+        assert res.success and "set aside" in res.message
+        assert not path.exists() and path.with_name("margcal.yaml.reset").exists()
+    finally:
+        h.close()
+    h2 = Harness(context, classes, tmp_path / "unused.yaml", calibration_file="auto")
+    try:
+        h2.spin_until(lambda: False, 0.5)
+        assert not h2.calibrations and h2.node.calibrations["mag"] is None
+    finally:
+        h2.close()
