@@ -19,5 +19,6 @@ from .worker import CalibrationWorker
 __all__ = [
     "STAMP_SOURCES", "CalibrationWorker", "RatePairing", "StampSource",
     "calibrate_imu", "calibrate_mag", "calibration_from_string", "calibration_to_string", "imu_to_numpy",
-    "mag_to_numpy", "propagate_covariance", "stamp_to_seconds", "status_to_diagnostic", "use_venv_ament_prefix", "vector3_to_numpy"
+    "mag_to_numpy", "propagate_covariance", "stamp_to_seconds", "status_to_diagnostic", "use_venv_ament_prefix",
+    "vector3_to_numpy"
 ]

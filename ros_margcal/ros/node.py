@@ -21,10 +21,10 @@ thread of this process may run one. The sample callbacks only convert the messag
 publish the calibrated message with the calibration the node holds and queue the sample; a timer
 (``_pump``, every 50 ms: an idle executor wake-up costs about 1 ms of CPU) hands the queued samples to
 the calibrators in a worker process (``worker.CalibrationWorker``: the gate, buffer, validator, fits,
-change detection, the gyro pairing) and takes back calibrations, events, statuses and service answers. ``~/reset`` and ``~/refit`` await
-the worker's answer without blocking the executor. ``main`` spins a ``SingleThreadedExecutor``: the
-``MultiThreadedExecutor`` of Jazzy's rclpy (7.1.6) cycles its wait loop at up to a full core and loses
-most of a 100 Hz stream (rclpy issue 1452, fixed after Jazzy), and nothing here needs a second thread.
+change detection, the gyro pairing) and takes back calibrations, events, statuses and service answers.
+``~/reset`` and ``~/refit`` await the worker's answer without blocking the executor. ``main`` spins a
+``SingleThreadedExecutor``: the ``MultiThreadedExecutor`` of Jazzy's rclpy (7.1.6) cycles its wait loop at
+up to a full core and loses most of a 100 Hz stream (rclpy issue 1452, fixed after Jazzy), and nothing here needs a second thread.
 
 The magnetometer's gyro-aided fit (``gyro_aided``, ``model/fitting_gyro.py``) takes the angular rate of
 the Imu message nearest in stamp (within ``GYRO_PAIR_S``) of the same ``frame_id`` (the rate must be in
@@ -313,7 +313,7 @@ class MargCalNode(Node):
         for s, cal in self._calibration.items():
             if cal is not None:
                 self._pub_cal[s].publish(calibration_to_string(cal, String, node=self.get_name()))
-        log.info(f"margcal started: sensors {sorted(self._configs)}, calibrated {sorted(s for s in self._configs if s in loaded)}, "
+        log.info(f"margcal started: sensors {sorted(self._configs)}, calibrated {sorted(loaded)}, "
                  f"worker process {self._worker.pid}")
 
     @property
@@ -399,7 +399,8 @@ class MargCalNode(Node):
         t, v = mag_to_numpy(msg)
         self._take("mag", t, v, None, msg.header.frame_id)
         cal = self._calibration["mag"]
-        if (cal is not None or self._publish_raw) and _publishable(v, self._limits["mag"]) and self._frame_ok("mag", msg):
+        publish = cal is not None or self._publish_raw
+        if publish and _publishable(v, self._limits["mag"]) and self._frame_ok("mag", msg):
             self._pub_mag.publish(calibrate_mag(msg, cal))
         self._traffic["mag"].times.append(time.perf_counter() - t0)
 
@@ -409,7 +410,8 @@ class MargCalNode(Node):
         self._take("accel", t, acc, gyro, msg.header.frame_id)
         if "accel" in self._configs:
             cal = self._calibration["accel"]
-            if (cal is not None or self._publish_raw) and _publishable(acc, self._limits["accel"]) and self._frame_ok("accel", msg):
+            publish = cal is not None or self._publish_raw
+            if publish and _publishable(acc, self._limits["accel"]) and self._frame_ok("accel", msg):
                 self._pub_imu.publish(calibrate_imu(msg, cal))
         self._traffic["accel"].times.append(time.perf_counter() - t0)
 

@@ -162,7 +162,7 @@ def serve(inbox: Any, outbox: Any, specs: dict[str, tuple[PipelineConfig, Calibr
             if time.monotonic() >= next_status:
                 cals.status()
                 next_status = time.monotonic() + status_period_s
-        except Exception:  # noqa: BLE001 - a defect must not end calibration: say it and go on with the next message
+        except Exception:
             outbox.put(("error", traceback.format_exc(limit=8)))
             if msg is not None and msg[0] == "request":
                 outbox.put(("reply", msg[2], False, "the worker failed on this request (see the node's log)"))

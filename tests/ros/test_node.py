@@ -18,7 +18,6 @@ from typing import Any
 
 import numpy as np
 import pytest
-
 from msgdata import MessageClasses, import_rclpy, mag_msg, mag_stream, rclpy_classes
 
 rclpy = import_rclpy()
@@ -282,7 +281,7 @@ def test_validator_file_is_used_and_a_bad_one_refused(context: Context, classes:
     for path, threshold in ((good, own.threshold), (bad, shipped.threshold)):
         h = Harness(context, classes, tmp_path / "cal.yaml", validator_file=str(path))
         try:  # the worker's calibrator reports the threshold of the validator it uses
-            assert h.spin_until(lambda: h.node.statuses["mag"].error_threshold is not None, 10.0)
+            assert h.spin_until(lambda h=h: h.node.statuses["mag"].error_threshold is not None, 10.0)
             assert h.node.statuses["mag"].error_threshold == pytest.approx(threshold)
         finally:
             h.close()
