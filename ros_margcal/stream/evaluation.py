@@ -2,7 +2,8 @@
 
 ``Evaluation`` is the part of ``calibrator.SensorCalibrator`` that decides whether the buffer is good
 enough and fits it (steps 4-6 of the calibrator's flow), kept apart from the per-sample path. It runs
-inline in ``push`` (replay) or, with ``defer_evaluation``, from ``run_pending`` on a worker (the node):
+inline in ``push`` (replay, and the node's worker process) or, with ``defer_evaluation``, from
+``run_pending`` on another thread (``bench/pipeline.py`` measures the per-sample path that way):
 the centre update and the validator under the caller's lock, the fit on a snapshot outside it, the
 result installed under it again, a fit whose data went stale meanwhile dropped. An evaluation on
 materially unchanged data (same bins, nearly the same buffer size and recent residual) is skipped with
@@ -58,8 +59,8 @@ class Evaluation(PartialCalibration):
     CENTER_MOVE_SIGMAS = 3.0
     """... as does one within this many standard errors of the sphere fit along the move (``_center_moved``)."""
     defer_evaluation: bool = False
-    """False (replay, offline): a due evaluation (centre, validator, fit) runs inside ``push``. True (the
-    node): ``push`` only records it and ``run_pending`` runs it, e.g. on a worker thread, so the
+    """False (replay, the node's worker process): a due evaluation (centre, validator, fit) runs inside ``push``.
+    True: ``push`` only records it and ``run_pending`` runs it, e.g. on a worker thread, so the
     per-message path never pays for a fit. Same results when ``run_pending`` follows each ``push``."""
     _pending: float | None = None
     _last_full: tuple[tuple[Any, ...], tuple[Any, ...]] | None = None  # what the last full evaluation saw
