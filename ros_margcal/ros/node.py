@@ -92,15 +92,17 @@ _FLOAT_PARAMS: dict[str, tuple[float, float, str]] = {
     "max_offset_ratio": (0.01, 20.0, "guard rail: |offset| limit as a multiple of the field norm"),
     "gain_min": (0.1, 1.0, "guard rail: smallest axis gain ratio"),
     "gain_max": (1.0, 10.0, "guard rail: largest axis gain ratio"),
-    "norm_min": (0.0, 1.0e3, "guard rail: smallest plausible field norm (tesla / m/s^2)"),
-    "norm_max": (0.0, 1.0e4, "guard rail: largest plausible field norm (tesla / m/s^2)"),
+    "norm_min": (0.0, 1.0e9, "guard rail: smallest plausible field norm, in the sensor's unit (default: the unit's)"),
+    "norm_max": (0.0, 1.0e9, "guard rail: largest plausible field norm, in the sensor's unit (default: the unit's); "
+                             "0.0 = none"),
     "not_worse_tolerance": (0.0, 1.0, "guard rail: allowed relative increase of the recent residual"),
     "max_parameter_std": (1e-4, 1.0, "guard rail: largest relative one-sigma parameter uncertainty"),
     "change_threshold": (0.001, 1.0, "median relative residual of recent samples that signals a changed sensor"),
     "change_min_duration_s": (0.0, 3600.0, "the change must persist this long before the buffer is rebuilt, s"),
     "outlier_threshold": (0.01, 10.0, "relative residual above which a sample is not buffered while calibrated"),
     "max_rate_hz": (1.0, 1.0e5, "samples closer than 1/max_rate_hz are a burst and dropped"),
-    "max_offset": (0.0, 1.0e3, "guard rail: absolute |offset| limit (tesla / m/s^2), besides max_offset_ratio; 0.0 = none"),
+    "max_offset": (0.0, 1.0e9, "guard rail: absolute |offset| limit in the sensor's unit, besides max_offset_ratio "
+                               "(default: the unit's); 0.0 = none"),
     "max_heading_p95_deg": (0.01, 180.0, "partial calibration: largest predicted heading p95 at the tilt seen, deg"),
     "early_heading_p95_deg": (0.01, 180.0, "early fit on rich motion: largest predicted heading p95 at 30 deg tilt, deg"),
 }
@@ -266,6 +268,7 @@ class MargCalNode(Node):
         self._stamps = {"mag": StampSource(mode, "imu/mag"), "accel": StampSource(mode, "imu/data_raw")}
         self._traffic = {s: _Traffic() for s in SENSORS}
         self._limits: dict[str, tuple[float, float]] = {}
+        self._units: dict[str, str] = {}
         self._batch: list[tuple[Any, ...]] = []
         self._calibration: dict[str, Calibration | None] = {}
         self._configs: dict[str, PipelineConfig] = {}
@@ -347,10 +350,21 @@ class MargCalNode(Node):
     # -- parameters -------------------------------------------------------------------------------
 
     def _declare_sensor(self, s: str) -> PipelineConfig:
-        base = PipelineConfig.for_sensor(s)
+        si = "T" if s == "mag" else "m/s^2"
+        unit = str(self.declare_parameter(f"{s}.unit", si, ParameterDescriptor(
+            description=f"unit of the driver's {s} messages ({si} per REP-103; e.g. gauss, uT, g; 'counts' learns "
+                        "the magnitudes from the data); the calibrated messages are in the same unit", read_only=True)).value)
+        try:
+            PipelineConfig.for_sensor(s, unit=unit)
+        except ConfigError as exc:
+            self.get_logger().error(f"{s}.unit {unit!r} refused ({exc}); using {si}")
+            unit = si
+        self._units[s] = unit
+        base = PipelineConfig.for_sensor(s, unit=unit)
         for name, (lo, hi, text) in _FLOAT_PARAMS.items():
             default = getattr(base, name)
-            self.declare_parameter(f"{s}.{name}", float(default or 0.0), _fdesc(lo, hi, text))
+            default = 0.0 if default is None or math.isinf(default) else default
+            self.declare_parameter(f"{s}.{name}", float(default), _fdesc(lo, hi, text))
         for name, (lo, hi, text) in _INT_PARAMS.items():
             self.declare_parameter(f"{s}.{name}", int(getattr(base, name)), _idesc(lo, hi, text))
         for name, text in _BOOL_PARAMS.items():
@@ -364,7 +378,7 @@ class MargCalNode(Node):
 
     def _config_from(self, s: str, changed: dict[str, Any]) -> PipelineConfig:
         """The PipelineConfig of sensor ``s`` from the declared parameters, with ``changed`` applied."""
-        base = PipelineConfig.for_sensor(s)
+        base = PipelineConfig.for_sensor(s, unit=self._units[s])
         names = [*_FLOAT_PARAMS, *_INT_PARAMS, *_BOOL_PARAMS, *_READ_ONLY_INT, *(_ACCEL_GATE if s == "accel" else ())]
         values: dict[str, Any] = {}
         for name in names:
@@ -373,6 +387,8 @@ class MargCalNode(Node):
         for name in ("max_predicted_error", "gate_gyro_threshold", "max_offset"):
             if name in values and not values[name]:
                 values[name] = None  # 0.0 = off / the validator's own threshold
+        if not values["norm_max"]:
+            values["norm_max"] = math.inf  # 0.0 = none (a unit without a scale: counts)
         return replace(base, **values).checked()
 
     def _validate_parameters(self, params: list[Parameter]) -> SetParametersResult:

@@ -425,3 +425,19 @@ def test_reset_sets_the_file_aside_and_the_default_file_is_the_nodes(context: Co
         assert not h2.calibrations and h2.node.calibrations["mag"] is None
     finally:
         h2.close()
+
+
+def test_a_driver_in_microtesla_is_calibrated_with_mag_unit(context: Context, classes: MessageClasses,
+                                                            stream: sim.Recording, tmp_path: Path) -> None:
+    """mag.unit uT: a driver publishing µT (many do, against REP-103) is calibrated in µT, its limits and guard
+    rails those of the unit; the calibrated messages are in µT too."""
+    h = Harness(context, classes, tmp_path / "cal.yaml", mag__unit="uT")
+    try:
+        h.publish(replace(stream, raw=stream.raw * 1e6))
+        assert h.spin_until(lambda: h.node.calibrations["mag"] is not None, 10.0), h.last_status().message
+        cal = h.node.calibrations["mag"]
+        assert cal.unit == "uT" and abs(cal.norm - 1e6 * stream.truth.norm) < 0.02 * 1e6 * stream.truth.norm
+        h.spin_until(lambda: False, 0.3)
+        assert abs(np.linalg.norm(mag_to_numpy(h.calibrated[-1])[1]) - cal.norm) < 0.05 * cal.norm
+    finally:
+        h.close()
