@@ -66,6 +66,8 @@ class _Calibrators:
         self.pairing = RatePairing(GYRO_PAIR_S)
         self.outbox = outbox
         self.sent = {s: c.calibration for s, c in self.cals.items()}
+        # a calibration from the file is stamped on its recording's clock: its age counts from our first sample
+        self.restamp = {s for s, c in self.cals.items() if c.calibration is not None}
 
     def samples(self, batch: list[Sample]) -> None:
         for sensor, t, x, y, z, gx, gy, gz, frame, arrival in batch:
@@ -83,8 +85,13 @@ class _Calibrators:
             self._push("mag", t, xyz, gyro)
 
     def _push(self, sensor: str, t: float, xyz: Any, gyro: Any) -> None:
-        for ev in self.cals[sensor].push(t, xyz, gyro):
+        c = self.cals[sensor]
+        for ev in c.push(t, xyz, gyro):
             self.event(ev)
+        if sensor in self.restamp and c.passed:
+            self.restamp.discard(sensor)
+            if c.calibration is not None and c.calibration is self.sent[sensor]:
+                c.set_calibration(c.calibration.replace(stamp=c.status().t))
 
     def event(self, ev: Any) -> None:
         self.outbox.put(("event", ev))
@@ -111,6 +118,7 @@ class _Calibrators:
             self.pairing.clear()
             for c in self.cals.values():
                 c.reset()
+            self.restamp.clear()
             return True, f"reset {sorted(self.cals)}: collecting"
         if kind == "refit":
             self._push_mag(self.pairing.release(time.monotonic(), everything=True))

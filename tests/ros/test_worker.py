@@ -129,3 +129,15 @@ def test_gyro_pairing_in_the_worker_ignores_callback_order() -> None:
     assert rows[0].shape == (40, 7)
     np.testing.assert_array_equal(rows[0], rows[1])
     assert np.allclose(rows[0][:30, 4:], [0.0, 0.0, 0.3]) and np.isnan(rows[0][30:, 4:]).all()
+
+
+def test_a_calibration_from_the_file_ages_from_the_first_sample(stream: sim.Recording) -> None:
+    """A file's calibration is stamped on its recording's clock (here 5 s); the node's samples carry the
+    driver's clock (1e9 s): its age counts from the first sample, not 1e9 s."""
+    truth = stream.truth.replace(stamp=5.0)
+    cals = _Calibrators({"mag": (PipelineConfig.for_sensor("mag"), truth)}, None, _Outbox())
+    batch = [("mag", 1e9 + 0.02 * k, *map(float, v), *NAN3, "imu_link", 0.0) for k, v in enumerate(stream.raw[:500])]
+    cals.samples(batch)
+    cals.command("refit", ())
+    st = cals.cals["mag"].status()
+    assert st.state.value == "calibrated" and st.age is not None and st.age < 20.0, (st.age, st.message)
