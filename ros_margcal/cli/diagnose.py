@@ -12,14 +12,15 @@ Examples::
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 from pathlib import Path
 from typing import Any
 
 from ..bench.diagnosis import main
-from ..diagnosis import diagnose, diagnose_holdout, rest_noise, summary, validator_downstream, write_report
+from ..diagnosis import check_options, diagnose, diagnose_holdout, rest_noise, summary, validator_downstream, write_report
 from ..diagnosis.twin import FIT_ERRORS
-from ..model.errors import ConfigError, MargCalError
+from ..model.errors import MargCalError, RecordingError, one_line
 from ..recordings.read import read_recording
 from ..validation.shipped import load_default_validator
 
@@ -65,17 +66,36 @@ def _progress(done: int, total: int, name: str) -> None:
           file=sys.stderr, flush=True)
 
 
+def _read(path: Path, sensor: str | None, topic: str | None) -> Any:
+    """The recording in file order; a clock that goes back (a logger restart) is handled by the diagnosis
+    (``diagnosis.core.file_order_times``), never by sorting, which would interleave the parts.
+
+    The reader refuses a file whose time goes backwards and advises ``sort=True``, which ``diagnose`` has
+    no option for and which would be wrong for a restart: that refusal says what to do instead (split the
+    file where the time goes back).
+    """
+    try:
+        return read_recording(path, sensor=sensor, topic=topic)
+    except RecordingError as exc:
+        if "sort=True" not in str(exc):  # not the order: the reader's own message
+            raise
+        said = re.sub(r";[^;]*sort=True.*$", "", one_line(exc))
+        msg = (f"{said} (a logger restart?); sorting by time would interleave the parts of a restart, and this file "
+               "is read only in time order: split it where the time goes back and diagnose each part")
+        raise RecordingError(msg) from exc
+
+
 def run(args: argparse.Namespace) -> int:
     """Run one diagnosis and write its report."""
 
-    if args.n_fit < 100:
-        msg = f"--n-fit must be at least 100, got {args.n_fit}"
-        raise ConfigError(msg)
-    rec = read_recording(args.input, sensor=args.sensor, topic=args.topic)
+    # every option up front (exit 2, one line), not after minutes of diagnosis
+    check_options(norm=args.norm, rest_noise=args.rest_noise, n_fit=args.n_fit, shape_tolerance=args.shape_tolerance,
+                  split=args.holdout, n_sets=args.retrain_sets, cli=True)
+    rec = _read(args.input, args.sensor, args.topic)
     sensor = args.sensor or rec.sensor
     noise = args.rest_noise
     if args.rest_recording is not None:
-        noise = rest_noise(read_recording(args.rest_recording, sensor=sensor).raw)
+        noise = rest_noise(_read(args.rest_recording, sensor, None).raw)
         print(f"rest noise from {args.rest_recording}: {noise:.4g} raw units", file=sys.stderr)
     validator = None
     if not args.no_validator:

@@ -24,6 +24,10 @@ stepped once or drifted (``hard_iron_jump`` against ``STEP_RIVALS`` and the drif
 ``ranking.STEP_MARGIN``) is then decided on how well one split explains the recording against the twins of the
 two (``ranking.separate_step_from_walk``): on a band of tilts the shrinks of the two do not tell them apart.
 
+A recording whose clock goes back (a logger restart) is taken in file order, each part's times continued
+after the part before (``file_order_times``, ``Diagnosis.time_restarts``): sorted by time its parts would
+interleave.
+
 ``diagnose_holdout`` fits on the first part of a recording and measures the shrink on the rest.
 ``validator_downstream`` adds the validator's view.
 """
@@ -43,6 +47,7 @@ from numpy.typing import NDArray
 from ..model.errors import ConfigError, InputError
 from ..sim.simulation import EFFECTS
 from .downstream import N_SET, compare_validators
+from .inputs import check_options, recording_arrays
 from .ranking import (
     DRIFT_GROUP,
     EffectFit,
@@ -56,7 +61,7 @@ from .ranking import (
 )
 from .stages import clipped_shares, stage_gaps
 from .twin import DEFAULT_N_FIT, FIT_ERRORS, Baseline, Twin, build_twin, mean_features
-from .twin_fits import MIN_SAMPLES
+from .twin_fits import MIN_SAMPLES, StaticRecording
 
 __all__ = ["NONE_GAP", "Diagnosis", "diagnose", "diagnose_holdout", "validator_downstream"]
 
@@ -115,6 +120,9 @@ class Diagnosis:
     downstream: dict[str, Any] = field(default_factory=dict)
     skipped: dict[str, str] = field(default_factory=dict)
     offset_change: dict[str, float] = field(default_factory=dict)
+    time_restarts: list[int] = field(default_factory=list)
+    """Samples after which the recording's clock went back (a logger restart): the samples are taken in
+    file order, each part's times continued after the part before (``file_order_times``)."""
     reason: str = ""
     """Why there is no ranking (the twin could not be built: ``unexplained``, or ``saturation`` read off the
     samples), else empty."""
@@ -159,6 +167,7 @@ class Diagnosis:
             "skipped": [{"stage": k, "reason": v} for k, v in self.skipped.items()],
             "offset_change": self.offset_change,
             "reason": self.reason,
+            "time_restarts": self.time_restarts,
         }
 
 
@@ -192,14 +201,6 @@ def _change_dict(twin: Twin) -> dict[str, float]:
     if c is None:
         return {}
     return {"t": c.t, "step": c.step, "relative_step": c.relative_step, "drop": c.drop}
-
-
-def _arrays(recording: Any) -> tuple[Array, Array, Array | None, str]:
-    try:
-        return recording.t, recording.raw, getattr(recording, "temp", None), str(getattr(recording, "sensor", ""))
-    except AttributeError as exc:
-        msg = f"recording must have t and raw (a simulation.Recording), got {type(recording).__name__}"
-        raise ConfigError(msg) from exc
 
 
 def diagnose(
@@ -236,17 +237,20 @@ def diagnose(
         progress: called as ``progress(done, total, effect_name)`` after each effect.
 
     A recording that makes no usable twin (too short, static, nothing converges) is not refused: its
-    cause is ``unexplained`` and ``Diagnosis.reason`` says why. Stages that cannot be computed are
-    left out of the gaps (``stages.stage_gaps``) and effects that cannot be fitted out of the ranking.
+    cause is ``unexplained`` and ``Diagnosis.reason`` says why (a static one, whose sensor never moved:
+    "static: the sensor did not move ...", ``twin_fits.static_reason``, found before any fit). Stages that
+    cannot be computed are left out of the gaps (``stages.stage_gaps``) and effects that cannot be fitted
+    out of the ranking.
 
     Raises:
-        ConfigError: unknown sensor or bad option.
+        ConfigError: unknown sensor or bad option (``check_options``).
         InputError: arrays of the wrong shape or with non-finite values (not a recording).
     """
     t0 = time.monotonic()
+    check_options(norm=norm, rest_noise=rest_noise, n_fit=n_fit, shape_tolerance=shape_tolerance)
     if quick:
         n_fit, n_seeds, n_spread = min(n_fit, QUICK_N_FIT), min(n_seeds, 2), min(n_spread, 4)
-    t, raw, temp, label = _arrays(recording)
+    t, raw, temp, label, restarts = recording_arrays(recording)
     sensor = sensor or label
     if sensor not in ("mag", "accel"):
         msg = f"sensor must be 'mag' or 'accel' (the recording says {label!r}); pass --sensor"
@@ -262,7 +266,11 @@ def diagnose(
         raise
     except FIT_ERRORS as exc:  # a recording that makes no usable twin still gets a verdict, with the reason
         log.info("no twin: %s", exc)
-        return _no_twin(sensor, len(t), str(exc), time.monotonic() - t0, raw)
+        # a static recording's repeated readings are no clipping: it is static, not saturated
+        verdict = _no_twin(sensor, len(t), str(exc), time.monotonic() - t0,
+                           None if isinstance(exc, StaticRecording) else raw)
+        verdict.time_restarts = restarts
+        return verdict
     seeds = base.seeds[:n_seeds]
     before = stage_gaps(twin.features_rec.values, base.mean, base.sd)  # against every seed of the spread
     gap_before = overall_gap(before)
@@ -305,7 +313,7 @@ def diagnose(
         stages_before=before, stages_after=stages_after, effects=fits, equivalent=equivalent_groups(observable, has_temp),
         unobservable=[e.name for e in hidden], null_gaps=_null_gaps(base), sensor=sensor, n_samples=len(t),
         n_fit=int(twin.sub.size), noise=twin.noise, seconds=time.monotonic() - t0, twin=twin, baseline=base,
-        skipped=dict(twin.skipped), offset_change=_change_dict(twin), reason=reason,
+        skipped=dict(twin.skipped), offset_change=_change_dict(twin), reason=reason, time_restarts=restarts,
     )
 
 
@@ -340,10 +348,8 @@ def diagnose_holdout(recording: Any, *, split: float = 0.5, **options: Any) -> d
         ``gap_before``, ``gap_after`` (the first part's effect and magnitude, not refitted), ``shrink``
         and per-stage gaps.
     """
-    if not 0.1 <= split <= 0.9:
-        msg = f"split must be in [0.1, 0.9], got {split}"
-        raise ConfigError(msg)
-    t, raw, temp, label = _arrays(recording)
+    check_options(split=split)
+    t, raw, temp, label, _ = recording_arrays(recording)  # a restarted clock: the parts in file order, ``file_order_times``
     cut = int(np.searchsorted(t, t[0] + split * (t[-1] - t[0])))
     part = type("Part", (), {})
     first, second = part(), part()
@@ -385,6 +391,7 @@ def validator_downstream(diag: Diagnosis, validator: object | None, *, n_sets: i
     and ``log_error_*`` (``|log10(measured / predicted)|``, 0 is perfect) repeat the table for the
     summary line.
     """
+    check_options(n_sets=n_sets)
     twin = diag.twin
     if validator is None or twin is None:
         return {"available": False, "reason": "no validator"}

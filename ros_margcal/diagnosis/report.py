@@ -1,14 +1,26 @@
 """The diagnosis written out: ``diagnosis.json`` for scripts, ``report.html`` (PNG plots embedded as
-base64, one self-contained file) for people, and a short console summary."""
+base64, one self-contained file) for people, and a short console summary.
+
+The two files change together: both are rendered in memory (plots included) before anything is
+written, then written to temporary files beside their targets, and renamed over them one after the
+other with Ctrl-C held back (``_replace_together``). An interrupt or a failure leaves the previous
+run's pair, never a new ``diagnosis.json`` beside an old ``report.html``.
+"""
 
 from __future__ import annotations
 
 import base64
+import contextlib
 import html
 import io
 import json
 import logging
 import math
+import os
+import signal
+import tempfile
+import threading
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -145,6 +157,11 @@ def summary(diag: Diagnosis) -> str:
         lines.append(f"unobservable with norm-based data: {', '.join(diag.unobservable)}")
     for name, why in diag.skipped.items():
         lines.append(f"stage {name} skipped: {why}")
+    if diag.time_restarts:
+        k = len(diag.time_restarts)
+        lines.append(f"time: the clock goes back {k} time{'s' if k > 1 else ''} (first after sample "
+                     f"{diag.time_restarts[0]}: a logger restart?); the samples are taken in file order, the times "
+                     "after each step back continued from the part before")
     oc = diag.offset_change
     if oc:
         lines.append(f"offset change at t \u2248 {oc['t']:.1f} s (step {100 * oc['relative_step']:.0f} % of the field "
@@ -159,8 +176,75 @@ def summary(diag: Diagnosis) -> str:
     return "\n".join(lines)
 
 
+@contextlib.contextmanager
+def _interrupts_held() -> Iterator[None]:
+    """Hold Ctrl-C (SIGINT) back for the block and deliver it right after (main thread; elsewhere a no-op).
+
+    A Python-level handler records the signal: blocking it with a signal mask would not do, since the
+    process's other threads (OpenBLAS's) would take it and Python would raise in the main thread anyway.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught: list[int] = []
+    try:
+        previous = signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
+    except (ValueError, OSError):  # no signals here (an embedding interpreter)
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        if caught:
+            signal.raise_signal(signal.SIGINT)  # as if it came now: KeyboardInterrupt under Python's own handler
+
+
+def _write_temp(target: Path, text: str) -> Path:
+    """``text`` in a temporary file beside ``target`` (flushed to disk), to be renamed over it."""
+    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; a report is readable like any other file
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+    return Path(tmp)
+
+
+def _replace_together(contents: dict[Path, str]) -> None:
+    """Write every ``{path: text}`` to a temporary file, then rename them all over their targets.
+
+    Nothing is renamed until every temporary file is written; the renames run with Ctrl-C held back
+    (``_interrupts_held``), so an interrupt leaves all old files or all new ones. Temporary files are
+    removed on any failure.
+    """
+    temps: dict[Path, Path] = {}
+    try:
+        for path, text in contents.items():
+            temps[path] = _write_temp(path, text)
+        with _interrupts_held():
+            for path, tmp in temps.items():
+                os.replace(tmp, path)
+    except BaseException:
+        for tmp in temps.values():
+            with contextlib.suppress(OSError):
+                tmp.unlink()
+        raise
+
+
 def write_report(diag: Diagnosis, out_dir: str | Path, *, extra: dict[str, Any] | None = None) -> tuple[Path, Path]:
-    """Write ``diagnosis.json`` and ``report.html`` into ``out_dir`` (created); returns both paths."""
+    """Write ``diagnosis.json`` and ``report.html`` into ``out_dir`` (created); returns both paths.
+
+    Both are rendered first and replace the previous pair together (``_replace_together``): an
+    interrupt (Ctrl-C) or an error while rendering or writing leaves the previous files as they were.
+    """
     out = Path(out_dir)
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -171,7 +255,7 @@ def write_report(diag: Diagnosis, out_dir: str | Path, *, extra: dict[str, Any] 
     if extra:
         data.update(extra)
     jpath = out / "diagnosis.json"
-    jpath.write_text(json.dumps(_json_safe(data), indent=2), encoding="utf-8")
+    json_text = json.dumps(_json_safe(data), indent=2)
     figs = []
     if diag.twin is not None:
         try:
@@ -202,6 +286,6 @@ spread over seeds. Equivalent (cannot be told apart): {html.escape(groups)}. Uno
 {"<h2>Withheld part</h2><pre>" + html.escape(json.dumps(_json_safe(extra), indent=1)) + "</pre>" if extra else ""}
 </body></html>"""
     hpath = out / "report.html"
-    hpath.write_text(body, encoding="utf-8")
+    _replace_together({jpath: json_text, hpath: body})
     log.info("wrote %s and %s", jpath, hpath)
     return jpath, hpath

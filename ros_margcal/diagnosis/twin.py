@@ -43,11 +43,13 @@ from .twin_fits import (
     CHANGE_EVIDENCE,
     MAX_ITER,
     MIN_SAMPLES,
+    StaticRecording,
     _change_message,
     _closed_form_fits,
     _located_change,
     _segment_fits,
     smooth_directions,
+    static_reason,
 )
 
 __all__ = [
@@ -275,6 +277,7 @@ def build_twin(
     Raises:
         InputError: bad shapes, non-finite values, a bad rest noise.
         DegenerateDataError: too few samples, or directions that cannot determine a fit.
+        StaticRecording: (a DegenerateDataError) the sensor did not move (``twin_fits.static_reason``).
     """
     pts = as_points(raw, "raw")
     n = pts.shape[0]
@@ -285,6 +288,9 @@ def build_twin(
     if n < MIN_SAMPLES:
         msg = f"a diagnosis needs at least {MIN_SAMPLES} samples, got {n}"
         raise DegenerateDataError(msg)
+    static = static_reason(pts)
+    if static:
+        raise StaticRecording(static)
     tmp = None if temp is None else np.asarray(temp, dtype=np.float64).reshape(-1)
     if tmp is not None and (tmp.shape != (n,) or not np.isfinite(tmp).all()):
         msg = f"temperature must hold {n} finite values"

@@ -6,6 +6,10 @@ or the fits of the two sides of a located offset change (``_segment_fits``, a ma
 A located change must beat the no-change twin (``_change_survives_twin``): the recording's
 one-shape-two-centres drop must exceed, by ``CHANGE_EVIDENCE``, the drop a twin simulated without a change
 shows. ``smooth_directions`` gives the directions every twin is simulated along.
+
+A static recording (the sensor never moved: one direction plus noise) has no twin: any ellipsoid fits
+a cloud of noise, and the effects fitted to it would name a confident cause for what is noise alone.
+``static_reason`` tells it apart before any fit, and ``build_twin`` refuses it (``StaticRecording``).
 """
 
 from __future__ import annotations
@@ -25,7 +29,10 @@ from .changes import OffsetChange, locate_offset_change, moving_mask
 from .fit_checks import checked_sym, lm_diag
 from .stages import rest_noise
 
-__all__ = ["CHANGE_EVIDENCE", "MAX_ITER", "MIN_SAMPLES", "SMOOTH_WINDOW", "smooth_directions"]
+__all__ = [
+    "CHANGE_EVIDENCE", "MAX_ITER", "MIN_SAMPLES", "SMOOTH_WINDOW", "STATIC_NOISE_SHARE", "STATIC_SPREAD",
+    "StaticRecording", "smooth_directions", "static_reason"
+]
 
 log = logging.getLogger(__name__)
 
@@ -42,6 +49,42 @@ CHANGE_EVIDENCE = 0.3
 the no-change twin (``_change_survives_twin``)."""
 _GUARD = 0.05
 """Share of the moving span left out on either side of an offset change when its sides are fitted."""
+STATIC_SPREAD = 3.0
+"""Largest spread of the readings (the std along their widest axis), in multiples of their white noise, of a
+static recording: about 1 for noise alone (real static HMC5883L and MPU6050 logs: 1.1-1.4), more than 10 for
+any recording that turns (60-480 on the real ones, 12 on a sparse one of 1600 samples)."""
+STATIC_NOISE_SHARE = 0.05
+"""Largest white noise (from second differences) of a static recording, as a share of the mean reading's
+norm (real static logs: 0.3-0.5 %). A set whose samples are out of time order (a shuffled coverage pattern)
+has "noise" of the size of its spread, about the field itself, and is not static."""
+
+
+class StaticRecording(DegenerateDataError):
+    """The recording is static: the sensor did not move, so it has no twin (``static_reason``)."""
+
+
+def static_reason(raw: Array) -> str:
+    """Why ``raw`` (n, 3) is a static recording ("static: the sensor did not move ..."), or "" when it moved.
+
+    Static: the readings spread no more than ``STATIC_SPREAD`` times their white noise (second
+    differences, ``stages.rest_noise``) along their widest axis, and that noise is at most
+    ``STATIC_NOISE_SHARE`` of the mean reading (else the samples are out of time order and the second
+    differences measured the motion). Needs no fit: an ellipsoid fitted to a cloud of noise exists.
+    """
+    pts = np.asarray(raw, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3 or pts.shape[0] < 5:
+        return ""
+    centred = pts - pts.mean(axis=0)
+    spread = float(np.sqrt(max(float(np.linalg.eigvalsh(centred.T @ centred / len(pts))[-1]), 0.0)))
+    white = rest_noise(pts)
+    level = float(np.linalg.norm(pts.mean(axis=0)))
+    if not (spread <= STATIC_SPREAD * white and white <= STATIC_NOISE_SHARE * level):
+        return ""
+    ratio = f"{spread / white:.1f} times" if white > 0 else "no more than"
+    return (f"static: the sensor did not move (its readings spread {ratio} their noise, one direction "
+            "throughout); a diagnosis needs a recording that turns the sensor through many directions. A static "
+            "recording measures the rest noise: pass it as --rest-recording with a recording that turns")
+
 
 def smooth_directions(h: Array, window: int = SMOOTH_WINDOW, t: Array | None = None) -> Array:
     """Unit directions of calibrated vectors ``h`` (n, 3), their noise smoothed out along time.

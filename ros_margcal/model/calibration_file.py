@@ -14,6 +14,13 @@ hand edit of a version 2 file, delete its checksum line and set its ``format_ver
 Every failure to load is a CalibrationFileError with a one-line message: not a regular file (a
 FIFO, a device), larger than 1 MiB, not UTF-8, not YAML, nested too deeply, YAML aliases (which a
 calibration file never needs and an alias bomb abuses), a bad checksum, a bad field.
+
+Saving follows symbolic links: a ``calibration_file`` that links to a file on a persistent volume keeps
+its link, and the file it points to is replaced atomically (the temporary file is written beside the
+link's target, not beside the link, so the rename stays within one file system). A save onto a FIFO, a
+device, a directory or a socket (or through a link that points to one, a link loop, a link into a
+missing folder) is refused before anything is written, with a CalibrationFileError that is also an
+OSError (the node's save handler catches OSError).
 """
 
 from __future__ import annotations
@@ -179,14 +186,58 @@ def _fsync_dir(folder: Path) -> None:
             os.close(fd)
 
 
+class _SaveRefused(CalibrationFileError, OSError):
+    """A save refused before writing (a special file, a broken link): bad input, and an OSError for the node."""
+
+
+_KINDS = ((stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO"), (stat.S_ISCHR, "a character device"),
+          (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"))
+
+
+def _save_target(given: Path) -> Path:
+    """The file a save of ``given`` replaces: ``given`` itself, or the end of its chain of symbolic links.
+
+    Raises _SaveRefused for a link loop, a link into a missing folder, and anything but a regular file.
+    """
+    where = str(given) if str(given).isprintable() else repr(str(given))
+    try:
+        target = Path(os.path.realpath(given, strict=False))
+        info: os.stat_result | None = target.lstat()
+    except FileNotFoundError:
+        info = None
+    except (OSError, ValueError) as exc:  # ValueError: a NUL in the path
+        msg = f"cannot save calibration file {where}: {one_line(str(exc))}"
+        raise _SaveRefused(msg) from exc
+    if info is not None and stat.S_ISLNK(info.st_mode):  # realpath stops at a loop and returns a link
+        msg = f"cannot save calibration file {where}: a loop of symbolic links; point it at a file or remove it"
+        raise _SaveRefused(msg)
+    via = f" (a link to {target})" if os.path.islink(given) else ""
+    if info is not None and not stat.S_ISREG(info.st_mode):
+        kind = next((name for test, name in _KINDS if test(info.st_mode)), "not a regular file")
+        msg = (f"cannot save calibration file {where}{via}: it is {kind}, not a regular file; "
+               "remove it or choose another path")
+        raise _SaveRefused(msg)
+    if not target.parent.is_dir():
+        msg = f"cannot save calibration file {where}{via}: folder {target.parent} does not exist (a volume not mounted?)"
+        raise _SaveRefused(msg)
+    return target
+
+
 def save_calibrations(path: str | os.PathLike[str], cals: dict[str, Calibration], node: str = "margcal") -> Path:
     """Write calibrations per sensor atomically (temp file in the same folder, fsync, rename, fsync the folder).
 
     The file ends with its checksum line; temp files left by earlier killed saves of the same target
-    are removed first (``_remove_stale_temps``).
+    are removed first (``_remove_stale_temps``). A symbolic link is followed: the link stays and the
+    file it points to gets the new content (``_save_target``). Returns ``path``.
+
+    Raises:
+        CalibrationFileError: (also an OSError) ``path`` is, or links to, a FIFO, a device, a directory or a
+            socket, or its links loop or end in a missing folder; nothing is written.
+        OSError: the system refuses the write (no permission, a full disk).
     """
-    target = Path(path)
-    target.parent.mkdir(parents=True, exist_ok=True)
+    given = Path(path)
+    given.parent.mkdir(parents=True, exist_ok=True)
+    target = _save_target(given)
     text = _dump(cals, node)
     _remove_stale_temps(target)
     fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.{os.getpid()}.", suffix=".tmp", dir=target.parent)
@@ -204,7 +255,7 @@ def save_calibrations(path: str | os.PathLike[str], cals: dict[str, Calibration]
             os.unlink(tmp)
         raise
     _fsync_dir(target.parent)
-    return target
+    return given
 
 
 def _read_text(p: Path, where: str) -> str:

@@ -523,6 +523,7 @@ class MargCalNode(Node):
         path = self._path()
         if path is None or not path.exists():
             return ""
+        path = path.resolve()  # a link to a persistent volume stays a link: its target is set aside
         aside = path.with_name(path.name + ".reset")
         try:
             with self._save_lock:
