@@ -13,6 +13,15 @@ reason, in this order, and acts on it:
    from ``broad_prior`` fits what the directions determine and keeps the rest at the prior, saying
    which parameters are which.
 
+Before any fit, ``screen`` takes out readings no fit should see, counted and said: *absurd* ones
+(a component beyond ``MAX_READING``: no sensor reads that in any unit, and the fit's squares of it
+overflow) and *spikes*, a robust pre-filter on the norm about a robust centre: a reading more than
+``SPIKE_GAP`` times as far from the coordinate-wise median of the readings as every reading of the bulk,
+when such far readings are at most ``SPIKE_SHARE`` of them. The field moves continuously over an
+ellipsoid, so its readings leave no such gap; a bit error or a bus fault does (the streaming calibrator's
+intake and spike filter drop the same samples). One sample 20 field norms away otherwise decides the
+least-squares fit (it does not converge, and the rescue below then fits the spike).
+
 A result is *implausible* when ``stream.config.plausibility`` says so (field norm outside the Earth
 field or gravity in a known unit, parameter uncertainty, offset limit, axis gains): the same limits
 the online calibrator applies before it publishes. A plausible fit whose residual exceeds the online
@@ -36,7 +45,20 @@ from ..model.fitting_prior import PriorFit, broad_prior, fit_with_prior
 from ..model.heading import heading_p95, heading_p95_typical
 from ..stream.config import STATIC_SPREAD, PipelineConfig, plausibility, relative_spread
 
-__all__ = ["STATIC_SPREAD", "Part", "Rescue", "check", "config_for", "heading_text", "rescue"]
+__all__ = [
+    "MAX_READING", "MIN_SCALE", "SPIKE_GAP", "SPIKE_SHARE", "STATIC_SPREAD", "Part", "Rescue", "Screen", "check",
+    "config_for", "heading_text", "reading_scale", "rescue", "screen"
+]
+
+MAX_READING = 1e100
+"""Largest |component| of a reading the batch fit takes, raw units: far beyond any sensor in any unit
+(counts, nT), far below where the fit's squares and products overflow."""
+MIN_SCALE = 1e-100
+"""Smallest scale of the readings (``reading_scale``) the batch fit takes: below it their squares underflow."""
+SPIKE_GAP = 3.0
+"""A spike is more than this many times as far from the readings' median as every reading of the bulk."""
+SPIKE_SHARE = 0.02
+"""At most this share of the readings (at least one) are spikes; more far readings are data, not glitches."""
 
 RESCUE_SHARED_DROP = 0.5
 """Evidence an offset change needs here: one shape with two centres removing half the single fit's
@@ -53,9 +75,92 @@ def _locate(t: Array, points: Array) -> OffsetChange | None:
     return locate_offset_change(np.asarray(t)[pick], np.asarray(points)[pick], min_shared_drop=RESCUE_SHARED_DROP)
 
 Array = NDArray[np.float64]
+Mask = NDArray[np.bool_]
 
 _MIN_POINTS = 10  # fewer samples than this are not fitted at all
 _PRIOR_POINTS = 6000  # the prior fit runs on at most this many evenly spaced samples
+
+
+def _distances(points: Array, centre: Array) -> Array:
+    """|v_i - centre| without overflow (hypot) for any finite readings (inf beyond the float range)."""
+    d = points - centre
+    with np.errstate(over="ignore"):
+        return np.asarray(np.hypot(np.hypot(d[:, 0], d[:, 1]), d[:, 2]), dtype=np.float64)
+
+
+def _spikes(points: Array) -> Mask:
+    """The readings beyond the largest gap ``SPIKE_GAP`` among the ``SPIKE_SHARE`` farthest from the median."""
+    n = len(points)
+    out = np.zeros(n, dtype=bool)
+    if n < _MIN_POINTS:
+        return out
+    d = _distances(points, np.median(points, axis=0))
+    order = np.argsort(d)[::-1]
+    far = d[order]
+    m = max(1, int(SPIKE_SHARE * n))
+    with np.errstate(invalid="ignore", over="ignore"):
+        gaps = np.flatnonzero(far[:m] > SPIKE_GAP * far[1 : m + 1])
+    if gaps.size:
+        out[order[: gaps[-1] + 1]] = True
+    return out
+
+
+@dataclass(frozen=True)
+class Screen:
+    """What ``screen`` kept (``keep``, a mask over the readings) and why it dropped the others."""
+
+    keep: Mask
+    absurd: int
+    spikes: int
+    farthest: float = 0.0
+    bulk: float = 0.0
+
+    @property
+    def dropped(self) -> dict[str, int]:
+        """Readings dropped per reason (only the reasons that dropped any)."""
+        return {k: v for k, v in (("absurd", self.absurd), ("spike", self.spikes)) if v}
+
+    def text(self, unit: str = "") -> str:
+        """One line saying what was dropped, "" when nothing was."""
+        u = f" {unit}" if unit else ""
+        parts = []
+        if self.absurd:
+            parts.append(f"{self.absurd} absurd (a component beyond {MAX_READING:g}, not a reading in any unit)")
+        if self.spikes:
+            parts.append(f"{self.spikes} spike(s) up to {self.farthest:.4g}{u} from the readings' median, more than "
+                         f"{SPIKE_GAP:g} x the farthest of the other readings ({self.bulk:.4g}{u})")
+        if not parts:
+            return ""
+        return (f"dropped {self.absurd + self.spikes} of {len(self.keep)} readings before the fit: {'; '.join(parts)}"
+                + ("; --keep-spikes fits the spikes" if self.spikes else ""))
+
+
+def screen(points: Array, *, spikes: bool = True) -> Screen:
+    """The readings a batch fit should see (module docstring): absurd ones out, then spikes (unless ``spikes`` is
+    False)."""
+    pts = np.asarray(points, dtype=np.float64)
+    keep = np.all(np.abs(pts) <= MAX_READING, axis=1) if pts.size else np.ones(len(pts), dtype=bool)
+    n_absurd = int((~keep).sum())
+    if not spikes:
+        return Screen(keep, n_absurd, 0)
+    idx = np.flatnonzero(keep)
+    spike = _spikes(pts[idx])
+    if not spike.any():
+        return Screen(keep, n_absurd, 0)
+    d = _distances(pts[idx], np.median(pts[idx], axis=0))
+    keep = keep.copy()
+    keep[idx[spike]] = False
+    return Screen(keep, n_absurd, int(spike.sum()), float(d[spike].max()), float(d[~spike].max()))
+
+
+def reading_scale(points: Array) -> float:
+    """The scale of the readings, raw units: the larger of their median norm and their median distance from
+    their median (about the field's radius for any recording that turns; 0 for none)."""
+    pts = np.asarray(points, dtype=np.float64)
+    if not len(pts):
+        return 0.0
+    zero = np.zeros(3)
+    return max(float(np.median(_distances(pts, zero))), float(np.median(_distances(pts, np.median(pts, axis=0)))))
 
 
 @dataclass(frozen=True)
@@ -192,14 +297,20 @@ def rescue(t: Array | None, points: Array, *, failure: str, model: str, norm: fl
 
     Args:
         t: the sample times (None: no change search).
-        points: the raw readings (n, 3) in time order.
+        points: the raw readings (n, 3) in time order, every component within ``MAX_READING`` (``screen``).
         failure: why the requested fit was not accepted (the error or the plausibility message).
         model, norm, loss, sensor, unit: as for ``fitting.fit``.
         cfg: the limits that judge a fit (``config_for``), None for no plausibility check.
         change_only: the fit itself is plausible, only its residual is high: look for an offset change
             and return None when there is none (motion or disturbances, not a reason to refit).
+
+    Raises:
+        InputError: a component of ``points`` beyond ``MAX_READING`` or not finite.
     """
     pts = np.asarray(points, dtype=np.float64)
+    if pts.size and not float(np.max(np.abs(pts))) <= MAX_READING:  # LAPACK may loop for ever on their squares
+        msg = f"points: a component beyond {MAX_READING:g} (or not finite); drop such readings first (screen)"
+        raise InputError(msg)
     stamp = float(t[-1]) if t is not None and len(t) else 0.0
     u = f" {unit}" if unit else ""
     if change_only:

@@ -46,9 +46,14 @@ def register(subparsers: Any) -> None:
                               description=__doc__.splitlines()[0])
     p.add_argument("recording", nargs="?", type=Path, help="rosbag2 (.mcap/.db3 or folder) or CSV (t,x,y,z[,gx,gy,gz])")
     p.add_argument("--example", action="store_true", help="replay the example recording shipped with ros_margcal")
-    p.add_argument("--sensor", choices=("mag", "accel"), help="CSV: which sensor the file holds (default: from the name)")
-    p.add_argument("--unit", help="CSV: raw unit: T, mT, uT, nT, gauss, mG (mag), m/s^2, g, mg (accel), or any other "
-                   "name such as counts (limits learnt from the first samples); default T for mag, m/s^2 for accel")
+    p.add_argument("--sensor", choices=("mag", "accel"),
+                   help="CSV: which sensor the file holds (default: from the name); bag: replay only this sensor's topics")
+    p.add_argument("--topic", action="append", metavar="TOPIC",
+                   help="bag: replay this Imu or MagneticField topic (repeatable; default: all; a sensor with several "
+                   "topics gets one calibration per topic)")
+    p.add_argument("--unit", help="raw unit: T, mT, uT, nT, gauss, mG (mag), m/s^2, g, mg (accel), or any other "
+                   "name such as counts (limits learnt from the first samples); default T for mag, m/s^2 for accel "
+                   "(REP-145). In a bag it applies to --sensor, or to the sensor it is a unit of (gauss: MagneticField)")
     p.add_argument("--truth", type=Path, help="calibration YAML with the true calibrations, to report the error")
     p.add_argument("--status-every", type=float, default=10.0, metavar="S",
                    help="status line every S seconds of recording time (default 10; 0 = events only)")
@@ -154,8 +159,9 @@ def run(args: argparse.Namespace) -> int:
     print(f"replaying {path}" + (f" with the validator {args.validator}" if validator is not None else ""))
     printer = None if args.quiet else print
     result = replay(path, sensor=args.sensor, unit=args.unit, status_every=args.status_every, on_line=printer,
-                    validator=validator, options={"partial_fit": False} if args.full_only else None)
+                    validator=validator, options={"partial_fit": False} if args.full_only else None, topics=args.topic)
     cals: dict[str, SensorCalibrator] = result["calibrators"]
+    topics: dict[str, str] = result.get("topics", {})
     truth = load_calibrations(truth_path) if truth_path is not None else {}
     summary: dict[str, Any] = {}
     print(f"\nfinal state after {result['messages']} messages:")
@@ -163,7 +169,10 @@ def run(args: argparse.Namespace) -> int:
         st: Status = c.status()
         entry: dict[str, Any] = {"state": st.state.value, "status": st.to_dict(),
                                  "calibration": None if c.calibration is None else c.calibration.to_dict()}
-        print(f"  {s}: {st.state.value} [{st.level.name}] {st.message}")
+        on = f" ({topics[s]})" if topics.get(s) and ":" not in s else ""
+        print(f"  {s}{on}: {st.state.value} [{st.level.name}] {st.message}")
+        if topics.get(s):
+            entry["topic"] = topics[s]
         if c.calibration is not None:
             print(_format_cal(c.calibration))
             for line in _heading_lines(st):

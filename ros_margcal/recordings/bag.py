@@ -11,9 +11,11 @@ interpolated onto the samples. A bag is either a rosbag2
 directory (``metadata.yaml`` plus storage files) or a bare ``.mcap`` / ``.db3`` storage file.
 
 Time order: offline readers refuse a recording whose times go backwards (``RecordingError`` naming
-the first offending row and the count) unless ``sort=True`` is given, which sorts the samples stably
-and logs how many were out of order. Repeated times are kept. ``iter_bag_messages`` streams in bag
-order and leaves the checking to its consumer (the streaming pipeline counts such samples).
+the first offending row and the count) unless ``sort=True`` (``order="sort"``) is given, which sorts the
+samples stably and logs how many were out of order, or ``order="file"``, which keeps the recorded order and
+stamps (a clock restart; ``recording.continue_clock`` makes them non-decreasing). Repeated times are kept.
+``iter_bag_messages`` streams in bag order and leaves the checking to its consumer (the streaming
+pipeline counts such samples).
 
 Writing follows REP-145 for ``imu/data_raw``: no orientation (``orientation_covariance[0] = -1``),
 no gyro when the recording has none (``angular_velocity_covariance[0] = -1``), and an all-zero
@@ -38,7 +40,7 @@ from numpy.typing import NDArray
 from ..model.errors import RecordingError, one_line
 from .recording import Recording, check_order
 
-__all__ = ["BAG_SUFFIXES", "FRAME_ID", "BagMessage", "bag_topics", "iter_bag_messages", "write_bag"]
+__all__ = ["BAG_SUFFIXES", "FRAME_ID", "BagMessage", "bag_topics", "is_bag", "iter_bag_messages", "write_bag"]
 
 log = logging.getLogger(__name__)
 
@@ -85,6 +87,7 @@ def _typestore() -> Any:
 
 
 def is_bag(path: Path) -> bool:
+    """A rosbag2 directory or a bare .mcap / .db3 storage file (by the path; the reader checks the content)."""
     return path.is_dir() or path.suffix in BAG_SUFFIXES
 
 
@@ -195,12 +198,14 @@ def _pick_connection(path: Path, conns: list[Any], sensor: str | None, topic: st
         msg = f"{path} has no {' or '.join(what[k] for k in sorted(kinds))} topic; it has {have}"
         raise RecordingError(msg)
     if len(match) > 1:
-        msg = f"{path} has several matching topics {sorted(c.topic for c in match)}; choose one with topic= (or sensor=)"
+        msg = (f"{path} has several matching topics {sorted(c.topic for c in match)}; choose one with --topic / topic= "
+               "(or --sensor / sensor=)")
         raise RecordingError(msg)
     return match[0]
 
 
-def read_bag(path: Path, sensor: str | None, topic: str | None, sort: bool) -> Recording:
+def read_bag(path: Path, sensor: str | None, topic: str | None, order: str) -> Recording:
+    """One topic of a bag; ``order`` as ``read.read_recording`` takes it (check, sort or file)."""
     reader = _open_reader(path)
     try:
         conn = _pick_connection(path, list(reader.connections), sensor, topic)
@@ -240,10 +245,10 @@ def read_bag(path: Path, sensor: str | None, topic: str | None, sort: bool) -> R
     if not (np.isfinite(times).all() and np.isfinite(raw).all()):
         msg = f"{path}: topic {conn.topic!r} has NaN/Inf samples; remove them"
         raise RecordingError(msg)
-    order = check_order(times, f"{path} {conn.topic}", sort)
-    if order is not None:
-        times, raw = times[order], raw[order]
-        gy = None if gy is None else gy[order]
+    index = None if order == "file" else check_order(times, f"{path} {conn.topic}", order == "sort")
+    if index is not None:
+        times, raw = times[index], raw[index]
+        gy = None if gy is None else gy[index]
     temp = None
     if tt:
         ti, vi = np.array(tt), np.array(tv)

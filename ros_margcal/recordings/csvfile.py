@@ -31,7 +31,8 @@ def guess_sensor(path: Path) -> str:
     return ""
 
 
-def read_csv(path: Path, sensor: str | None, sort: bool) -> Recording:
+def read_csv(path: Path, sensor: str | None, order: str) -> Recording:
+    """The CSV at ``path``; ``order`` as ``read.read_recording`` takes it (check, sort or file)."""
     try:
         with path.open(newline="", encoding="utf-8-sig") as fh:  # -sig: a spreadsheet export starts with a BOM
             rows = list(csv.reader(fh))
@@ -76,9 +77,9 @@ def read_csv(path: Path, sensor: str | None, sort: bool) -> Recording:
         n_bad = int(bad.any(axis=1).sum())
         msg = f"{path}: line {i + 2}, column {wanted[j]!r} is {float(data[i, j])}; {n_bad} row(s) are not finite, remove them"
         raise RecordingError(msg)
-    order = check_order(data[:, 0], str(path), sort)
-    if order is not None:
-        data = data[order]
+    index = None if order == "file" else check_order(data[:, 0], str(path), order == "sort")
+    if index is not None:
+        data = data[index]
     k = 4
     temp = None
     if "temp" in wanted:

@@ -12,10 +12,13 @@ from numpy.typing import NDArray
 from ..model.calibration import Calibration
 from ..model.errors import InputError, RecordingError
 
-__all__ = ["Recording", "check_order", "check_sensor"]
+__all__ = ["TIME_ORDERS", "Recording", "check_order", "check_sensor", "continue_clock", "time_order"]
 
 log = logging.getLogger(__name__)
 Array = NDArray[np.float64]
+
+TIME_ORDERS = ("check", "sort", "file")
+"""What a reader does when the time goes backwards: refuse, sort stably, or keep the file's order and times."""
 
 
 @dataclass
@@ -23,7 +26,7 @@ class Recording:
     """A recorded (or simulated) sensor time series.
 
     Attributes:
-        t: sample times, seconds, shape (n,), non-decreasing.
+        t: sample times, seconds, shape (n,), non-decreasing (unless read with ``order="file"``).
         raw: raw readings, shape (n, 3), raw units.
         truth: the true calibration (None for a real recording).
         true_field: the physical vector in the body frame before any effect, (n, 3), or None.
@@ -79,6 +82,40 @@ def check_sensor(sensor: str | None) -> None:
         raise RecordingError(msg)
 
 
+def time_order(order: str, sort: bool) -> str:
+    """The readers' ``order`` with the older ``sort`` flag folded in (``sort=True`` is ``order="sort"``)."""
+    if order not in TIME_ORDERS:
+        msg = f"order must be one of {TIME_ORDERS}, got {order!r}"
+        raise RecordingError(msg)
+    if sort and order == "file":
+        msg = "sort=True and order='file' contradict each other; give one"
+        raise RecordingError(msg)
+    return "sort" if sort else order
+
+
+def continue_clock(t: Array) -> tuple[Array, NDArray[np.intp]]:
+    """File-order times made non-decreasing, and the indices after which the time went backwards.
+
+    A clock that goes back (a logger or driver restart) starts a new time base; the samples after it were
+    still recorded later. Each backwards step is replaced by the typical step (the median positive step,
+    0 without one) and the earlier time bases are moved back by as much, so every interval is kept, the
+    time bases follow each other in file order (never interleaved, as sorting would) and the last time
+    base keeps its stamps: the clock the recording ended with, the one a calibration's stamp refers to
+    (as the streaming calibrator moves its stamps onto a new time base).
+    """
+    times = np.asarray(t, dtype=np.float64).reshape(-1)
+    steps = np.diff(times)
+    back = np.flatnonzero(steps < 0)
+    if back.size == 0:
+        return times.copy(), back
+    forward = steps[steps > 0]
+    typical = float(np.median(forward)) if forward.size else 0.0
+    add = np.zeros(times.size)
+    add[back + 1] = typical - steps[back]
+    shift = np.cumsum(add)
+    return times + (shift - shift[-1]), back
+
+
 def check_order(t: Array, where: str, sort: bool) -> NDArray[np.intp] | None:
     """None when ``t`` never decreases; the stable sort order when ``sort``; RecordingError otherwise."""
     back = np.flatnonzero(np.diff(t) < 0)
@@ -87,7 +124,8 @@ def check_order(t: Array, where: str, sort: bool) -> NDArray[np.intp] | None:
     if not sort:
         msg = (
             f"{where}: time goes backwards at {back.size} place(s), first after sample {int(back[0])} "
-            f"({float(t[back[0]])!r} -> {float(t[back[0] + 1])!r}); fix the file or read it with sort=True"
+            f"({float(t[back[0]])!r} -> {float(t[back[0] + 1])!r}); fix the file, or read it with sort=True "
+            "(sorted by time) or order='file' (file order: a clock restart)"
         )
         raise RecordingError(msg)
     log.warning("%s: %d backwards time step(s); samples sorted by time", where, back.size)
