@@ -12,7 +12,6 @@ Examples::
 from __future__ import annotations
 
 import argparse
-import re
 import sys
 from pathlib import Path
 from typing import Any
@@ -20,7 +19,7 @@ from typing import Any
 from ..bench.diagnosis import main
 from ..diagnosis import check_options, diagnose, diagnose_holdout, rest_noise, summary, validator_downstream, write_report
 from ..diagnosis.twin import FIT_ERRORS
-from ..model.errors import MargCalError, RecordingError, one_line
+from ..model.errors import MargCalError
 from ..recordings.read import read_recording
 from ..validation.shipped import load_default_validator
 
@@ -67,22 +66,9 @@ def _progress(done: int, total: int, name: str) -> None:
 
 
 def _read(path: Path, sensor: str | None, topic: str | None) -> Any:
-    """The recording in file order; a clock that goes back (a logger restart) is handled by the diagnosis
-    (``diagnosis.core.file_order_times``), never by sorting, which would interleave the parts.
-
-    The reader refuses a file whose time goes backwards and advises ``sort=True``, which ``diagnose`` has
-    no option for and which would be wrong for a restart: that refusal says what to do instead (split the
-    file where the time goes back).
-    """
-    try:
-        return read_recording(path, sensor=sensor, topic=topic)
-    except RecordingError as exc:
-        if "sort=True" not in str(exc):  # not the order: the reader's own message
-            raise
-        said = re.sub(r";[^;]*sort=True.*$", "", one_line(exc))
-        msg = (f"{said} (a logger restart?); sorting by time would interleave the parts of a restart, and this file "
-               "is read only in time order: split it where the time goes back and diagnose each part")
-        raise RecordingError(msg) from exc
+    """The recording in file order: a clock that goes back (a logger restart) is handled by the diagnosis
+    (``diagnosis.core.file_order_times``), never by sorting, which would interleave the parts."""
+    return read_recording(path, sensor=sensor, topic=topic, order="file")
 
 
 def run(args: argparse.Namespace) -> int:
