@@ -10,7 +10,12 @@ magnetometer or accelerometer, in pure Python (no rclpy):
    in a loop, a driver restart: ``new_time_base_after`` consistent samples off the time base) starts
    a new time base: the stored times are moved onto it, the gate is emptied, the buffer and the
    calibration are kept, an ``EventKind.TIME_BASE`` event and the status say so. A gyro that is
-   malformed, not finite or beyond ``intake.MAX_GYRO_RAD_S`` is ignored for that sample.
+   malformed, not finite or beyond ``intake.MAX_GYRO_RAD_S`` is ignored for that sample. In a unit
+   without a known scale the magnitude limits are learnt from the first samples and relearnt when
+   nearly every sample falls outside them (a bad start); before a calibration, what the old limits let
+   through is then forgotten. Magnetometer samples then pass the spike filter (``intake.SpikeFilter``):
+   one that leaves the stream by far more than its usual step and comes straight back (a glitch, of
+   any magnitude) is dropped as ``spike``; the others go on, a far step one to three samples late.
 2. *Gate.* Accelerometer samples go through ``gate.InactivityGate`` (Gietzelt et al. 2013, §2.4:
    coefficient of variation of the norm over a 2 s window below 3e-3; 1 s with a gyro reading below
    ``gate_gyro_rest_threshold``, ``gate.GyroAidedGate``) and only its averaged still samples go on;
@@ -37,14 +42,18 @@ magnetometer or accelerometer, in pure Python (no rclpy):
    ``change_threshold`` for ``change_min_duration_s``, the sensor has changed (a hard-iron jump, a
    drift): the buffer is rebuilt from the samples since the change began and the next validated fit
    describes the new sensor (the not-worse check then uses only those samples, on which the old
-   calibration is poor). A slow drift is also followed by the periodic rechecks while calibrated.
+   calibration is poor); a change withdraws itself when the old calibration explains the samples
+   again (a bad stretch that passed). A slow drift makes the calibration stale between rechecks: a
+   recheck then re-centres it on the samples since its fit (``change``). The status residual leaves
+   out the recent samples the calibration calls outliers (they were dropped) unless they are most.
 
 The state is one of ``State`` (collecting, ready, calibrated, rejected); ``status()`` returns a
 ``Status`` with everything ``/calib/status`` shows, its ``level`` an ``IntEnum`` (the node turns it
 into the bytes rclpy wants).
 
 Counting: every pushed sample is counted once, ``seen == passed + sum(dropped.values())``. ``dropped``
-holds the intake's reasons and ``outlier`` (while calibrated, a sample too far from the calibration;
+holds the intake's reasons, ``spike`` (a magnetometer sample the spike filter dropped; one it holds back
+counts as passed meanwhile) and ``outlier`` (while calibrated, a sample too far from the calibration;
 for the accelerometer, the sample whose push made the gate emit an outlying still mean); ``passed``
 holds the rest: handed to the buffer stage (magnetometer) or to the gate (accelerometer, where most
 samples end inside a window mean; ``kept`` counts what the buffer took).
@@ -69,7 +78,7 @@ from ..validation.shipped import default_validator
 from .change import ChangeDetection
 from .config import STATIC_SPREAD, PipelineConfig, relative_spread
 from .evaluation import Evaluation
-from .intake import DROP_REASONS, Intake
+from .intake import DROP_REASONS, Intake, Sample, SpikeFilter
 from .status import Event, EventKind, Level, State, Status, pct
 
 __all__ = ["DROP_REASONS", "Event", "EventKind", "Level", "PipelineConfig", "SensorCalibrator", "State", "Status",
@@ -129,6 +138,7 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         self._recent_v: deque[tuple[float, float, float]] = deque(maxlen=cfg.recent_samples)
         self._recent_r: deque[float] = deque(maxlen=cfg.recent_samples)
         self._intake = Intake(cfg, use_gyro=self._gate is not None or cfg.gyro_aided)
+        self._spikes = SpikeFilter()
         self.dropped = self._intake.dropped  # the intake's reasons and "outlier", one dict
         self.passed = 0
         self.kept = 0
@@ -141,6 +151,10 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         self._changed = False
         self._suspect_since: float | None = None
         self._change_onset: float | None = None
+        self._stale_note = ""
+        self._recentred: Calibration | None = None  # the current calibration when a re-centring (change.py) made it
+        self._back_since: float | None = None  # after a change: since when the old calibration explains the samples
+        self._pre_change: tuple[Any, Any] | None = None  # the buffer's times and points before the change
         self._predicted: float | None = None
         self._indicators: Any = None
         self._last_rejection = ""
@@ -169,6 +183,7 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         if cal is None:
             self._cal, self._w = None, ()
             self._state = State.COLLECTING
+            self._intake.expected = None
         else:
             self._install(cal)
         self._partial, self._figures = None, None
@@ -198,10 +213,13 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         self._cal = cal
         w, b = cal.matrix, cal.offset
         self._w = (*w.reshape(-1).tolist(), *b.tolist(), cal.norm)
+        self._intake.expected = math.sqrt(float(b @ b) + cal.raw_radius**2)  # the raw field's RMS norm: learnt limits hold it
         self._state = State.CALIBRATED
         self._changed = False
         self._suspect_since = None
         self._change_onset = None
+        self._back_since = None
+        self._pre_change = None
         if len(self._recent_v):
             r = np.abs(cal.norm_error(np.array(self._recent_v))) / cal.norm
             self._recent_r = deque(r.tolist(), maxlen=self.config.recent_samples)
@@ -231,16 +249,33 @@ class SensorCalibrator(ChangeDetection, Evaluation):
             return []
         t, (x, y, z), g = got
         events = [] if intake.new_base_step is None else self._new_time_base(t, intake.new_base_step)
+        if intake.relearnt_now:
+            self._limits_relearnt(t)
         self._t = t
-        if self._gate is None and intake.use_gyro:
-            self._gyro_push(t, x, y, z, g)
-        if self._gate is not None:
-            out = self._gate.push(t, (x, y, z), g)
-            if out is None:
-                self.passed += 1  # handed to the gate, which keeps it inside a window (or finds motion)
-                return events
-            x, y, z = (float(v) for v in out.tolist())
+        if self._gate is None:  # the magnetometer: held back while it may be a spike (intake.SpikeFilter)
+            spikes = self._spikes
+            pending = spikes.pending
+            out, n = spikes.push((t, x, y, z, g))
+            self.passed += spikes.pending - pending  # a held sample counts as passed until it is a spike
+            if n:
+                self.dropped["spike"] += n
+            return events + self._hand_on(out) if out else events
+        out = self._gate.push(t, (x, y, z), g)
+        if out is None:
+            self.passed += 1  # handed to the gate, which keeps it inside a window (or finds motion)
+            return events
+        x, y, z = (float(v) for v in out.tolist())
         return events + self._accept(t, x, y, z)
+
+    def _hand_on(self, samples: list[Sample]) -> list[Event]:
+        """The magnetometer samples the spike filter handed on: the gyro-aided fit's rows, then the sample path."""
+        events: list[Event] = []
+        gyro = self._intake.use_gyro
+        for t, x, y, z, g in samples:
+            if gyro:
+                self._gyro_push(t, x, y, z, g)
+            events += self._accept(t, x, y, z)
+        return events
 
     def _new_time_base(self, t: float, step: float) -> list[Event]:
         """The stamps restarted (``intake``): move the stored times onto the new time base, empty the gate.
@@ -249,6 +284,10 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         windows, the change detector and the refit cadence see one continuous stream; the buffer (its
         bins compare stamps by their distance) and the calibration are kept.
         """
+        held = self._spikes.flush() if self._gate is None else []  # the old time base's, handed on before the move
+        self.passed -= len(held)
+        events = self._hand_on(held)
+        self._spikes.reset()
         shift = step - self.config.min_period_s
         self._recent_t = deque((s + shift for s in self._recent_t), maxlen=self._recent_t.maxlen)
         if self._suspect_since is not None:
@@ -266,7 +305,24 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         msg = (f"new time base: stamps jumped {step:+.6g} s to t={t:.3f} s and went on "
                f"({self.config.new_time_base_after} consistent samples); the calibration and buffer are kept")
         log.warning("%s: %s", self.sensor, msg)
-        return [Event(EventKind.TIME_BASE, t, self.sensor, msg)]
+        return [*events, Event(EventKind.TIME_BASE, t, self.sensor, msg)]
+
+    def _limits_relearnt(self, t: float) -> None:
+        """The intake relearnt its magnitude limits (a unit without a known scale): before a calibration, what
+        the old limits let through (the bad start they were learnt from) is forgotten; the counters stay."""
+        log.warning("%s: %s", self.sensor, self._intake.learnt)
+        if self._cal is not None:
+            return
+        self._buffer.clear()
+        for d in (self._recent_t, self._recent_v, self._recent_r):
+            d.clear()
+        self._partial_reset()
+        self._spikes.reset()
+        self._since_eval = 0
+        self._last_full = None
+        self._predicted = None
+        self._indicators = None
+        self._last_reason = "magnitude limits relearnt: collecting again"
 
     def _accept(self, t: float, x: float, y: float, z: float) -> list[Event]:
         events: list[Event] = []
@@ -282,6 +338,8 @@ class SensorCalibrator(ChangeDetection, Evaluation):
             if not self._changed and r > cfg.outlier_threshold:
                 self.dropped["outlier"] += 1
                 return events
+        elif self._changed and (r <= cfg.change_threshold or self._back_since is not None):
+            events += self._check_return(t)
         self.passed += 1
         if self._buffer.push_finite(t, x, y, z):
             self.kept += 1
@@ -302,14 +360,30 @@ class SensorCalibrator(ChangeDetection, Evaluation):
     # -- status -----------------------------------------------------------------------------------
 
     def residual(self) -> float | None:
-        """RMS relative norm error of the current calibration on the recent samples."""
+        """RMS relative norm error of the current calibration on the recent samples, without those it calls
+        outliers (beyond ``outlier_threshold``: dropped, never buffered) unless they are most of them (a change)."""
+        got = self._residual_figures()
+        return None if got is None else got[0]
+
+    def _residual_figures(self) -> tuple[float, int, int] | None:
+        """``(residual, outliers left out, recent samples)`` of the current calibration (``residual``), or None.
+
+        The recent samples keep the outliers for the change detector (its median residual), but a dropped
+        sample is no measure of the calibration: one 1000 µT glitch made an exact calibration's residual
+        80 % for the next ``recent_samples`` samples."""
         if self._cal is None or not len(self._recent_v):
             return None
         pts = self._recent_points()
         if not len(pts):
             return None
-        e = self._cal.norm_error(pts) / self._cal.norm
-        return float(np.sqrt(np.mean(e * e)))
+        e = np.abs(self._cal.norm_error(pts)) / self._cal.norm
+        out = e > self.config.outlier_threshold
+        n_out = int(np.count_nonzero(out))
+        if n_out and 2 * n_out < len(e):
+            e = e[~out]
+        else:
+            n_out = 0
+        return float(np.sqrt(np.mean(e * e))), n_out, len(pts)
 
     def _static_note(self) -> str:
         """"; the sensor has not turned ..." when the recent samples stay within ``STATIC_SPREAD`` of their mean."""
@@ -326,13 +400,16 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         """The status at message time ``now`` (default: the last sample's time)."""
         t = self._t if now is None else float(now)
         cal = self._cal
-        res = self.residual()
+        figures = self._residual_figures()
+        res = None if figures is None else figures[0]
         st = self._state
         if self.seen == 0:
             level, msg = Level.STALE, "no samples received yet"
         elif st is State.CALIBRATED and not self._changed:
             level = Level.OK
-            msg = f"calibrated: residual {pct(res)}, age {max(0.0, t - cal.stamp):.0f} s" if cal else "calibrated"
+            left_out = "" if not (figures and figures[1]) else \
+                f" (without {figures[1]} outliers of the last {figures[2]} samples, dropped)"
+            msg = f"calibrated: residual {pct(res)}{left_out}, age {max(0.0, t - cal.stamp):.0f} s" if cal else "calibrated"
             if self._last_rejection:
                 msg += f"; last refit rejected: {self._last_rejection}"
         elif st is State.REJECTED:

@@ -6,20 +6,47 @@ While calibrated, each sample's relative norm error under the calibration is kep
 It is declared only against the no-change hypothesis: one calibration refitted on the buffer and the
 whole recent window (``_no_change``); when that explains both within the tolerance, it is installed
 instead. A declared change rebuilds the buffer from the samples since its onset, and the next validated
-fit describes the new sensor. ``ChangeDetection`` is a part of ``calibrator.SensorCalibrator`` (a mixin:
-it uses the calibrator's state and ``_install``, ``_set_state``).
+fit describes the new sensor. A change can pass: a bad stretch of samples (a sensor reset that reads a
+few counts, a magnet held near it for a while) is a change while it lasts, and afterwards the old
+calibration explains the samples again. When, before a new calibration, the median over the last
+``change_window`` samples under the old calibration has stayed within half ``change_threshold`` (a margin
+against a change that hovers at the threshold) for ``change_min_duration_s``, the change is withdrawn
+(``_check_return``): the old calibration is current again, the buffer of before the change comes back with
+the samples since that it explains. Without this the buffer kept the bad stretch and every refit failed
+its residual guard rail: the calibrator stayed "collecting after a sensor change" for good.
+
+A drift is a change too slow for the detector: a hard iron that moves by 0.05 field norms a minute keeps
+the median residual below ``change_threshold`` when the rechecks refit every ``recheck_interval_s``, but
+the buffer keeps up to ``per_bin`` samples of each direction for minutes, so each refit described the mean
+offset of minutes of data (several per cent behind) and passed every guard rail. On a recheck, a
+calibration whose residual grew beyond ``STALE_FACTOR`` times its fit residual and ``STALE_MIN``, on the
+recent samples and on the samples since its fit in the directions it was fitted on, is stale
+(``_stale``). It is then re-centred (``_drift_compute``): offset and one scale refitted on the buffered
+samples of the last ``recheck_interval_s``, the matrix's shape kept (a hard iron moves the offset; four
+parameters need far fewer directions than nine). The re-centring must pass the guard rails (not worse
+than the current calibration on the recent samples) and, on the first stale recheck, fit the samples since
+the calibration better than the full refit (``_drift_choice``: a first calibration only poor where it had
+no data also looks stale, and a changed soft iron needs the full refit). Once a re-centring is installed,
+each direction bin that received samples since the calibration's fit keeps only those (``_refresh_buffer``;
+a bin not seen since keeps its older ones: the coverage stays), and the rechecks only re-centre until
+``DRIFT_QUIET`` of them in a row found it fresh (``_drift_hold``); a refit must then also not be worse on
+the samples since the re-centring (``_judge_points``).
+
+``ChangeDetection`` is a part of ``calibrator.SensorCalibrator`` (a mixin: it uses the calibrator's state
+and ``_install``, ``_set_state``).
 """
 
 from __future__ import annotations
 
 import logging
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from ..model.calibration import Calibration
 from ..model.fitting import fit
-from .config import guard_rails
+from .config import STATIC_SPREAD, guard_rails, relative_spread, rms_relative
 from .status import Event, EventKind, State, pct
 
 __all__ = ["ChangeDetection"]
@@ -34,6 +61,151 @@ _NOISE_FLOOR = 0.005
 
 class ChangeDetection:
     """Change detection of a ``SensorCalibrator`` (see the module docstring)."""
+
+    STALE_FACTOR = 2.0
+    """While calibrated, a recent residual beyond this many times the calibration's fit residual ..."""
+    STALE_MIN = 0.01
+    """... and beyond this (relative: noise and the model's error stay within) makes the calibration stale."""
+    DRIFT_MIN_POINTS = 12
+    """Fewest buffered samples since the calibration's fit for a re-centring refit (four parameters)."""
+    DRIFT_QUIET = 2
+    """Rechecks in a row that find a re-centred calibration fresh before the full refit runs again."""
+    _quiet = 0
+    # the calibrator's state this mixin uses (set in ``SensorCalibrator.reset``)
+    _suspect_since: float | None
+    _change_onset: float | None
+    _back_since: float | None
+    _pre_change: tuple[Any, Any] | None
+    _recentred: Calibration | None
+    _stale_note: str
+
+    def _stale(self) -> bool:
+        """On a recheck: has the calibration gone stale (module docstring)?
+
+        Stale means its residual grew where it was fitted: on the recent samples, and on the samples since its fit
+        that fell in direction bins holding samples from before (without outliers). A first calibration only poor
+        in directions it had no data for can pass this too; ``_drift_choice`` then prefers the full refit. A partial
+        or early (MAP) calibration is never stale here: the partial path refits it on its own schedule."""
+        cal = self._cal
+        if cal is None or self._changed or cal.stats is None or self._partial is not None:
+            return False
+        limit = max(self.STALE_FACTOR * cal.stats.rms_relative, self.STALE_MIN)
+        res = self.residual()
+        if res is None or not res > limit:  # the cheap test first: the recent samples
+            return False
+        buf = self._buffer
+        times, pts = buf.times(), buf.points()
+        fresh = times >= cal.stamp
+        if fresh.all() or not fresh.any():
+            return False
+        bins = np.array([buf.bin_of(p) for p in pts])
+        again = fresh & np.isin(bins, bins[~fresh])
+        e = np.abs(cal.norm_error(pts[again])) / cal.norm
+        e = e[e <= self.config.outlier_threshold]
+        if len(e) < self.DRIFT_MIN_POINTS:
+            return False
+        stale = float(np.sqrt(np.mean(e * e)))
+        if not stale > limit:
+            return False
+        self._stale_note = (f"the calibration of t={cal.stamp:.2f} s had gone stale (residual {pct(stale)} on the "
+                            f"{len(e)} samples since in directions it was fitted on, {pct(cal.stats.rms_relative)} at its fit)")
+        return True
+
+    def _refresh_buffer(self, since: float) -> None:
+        """A re-centring was installed: direction bins that received samples since ``since`` keep only those (the older
+        ones describe the offset before the drift); a bin not seen since keeps its samples (the coverage stays)."""
+        buf = self._buffer
+        times, pts = buf.times(), buf.points()
+        fresh = times >= since
+        if fresh.all() or not fresh.any():
+            return
+        bins = np.array([buf.bin_of(p) for p in pts])
+        keep = fresh | ~np.isin(bins, bins[fresh])
+        if keep.all():
+            return
+        buf.clear()
+        for ti, p in zip(times[keep].tolist(), pts[keep].tolist(), strict=True):
+            buf.push_finite(ti, p[0], p[1], p[2])
+
+    def _drifting(self) -> bool:
+        """The current calibration is a re-centring (a drift is on: ``_drift_hold``)."""
+        return self._cal is not None and self._recentred is self._cal and not self._changed
+
+    def _drift_hold(self, stale: bool) -> bool:
+        """True when a recheck must neither re-centre nor refit: under a re-centring, not stale yet.
+
+        While a drift goes on, the full refit describes the mean offset of samples of different ages in different
+        directions (a recheck between two re-centrings published one 5 % off); the rechecks re-centre when stale
+        and otherwise wait, until ``DRIFT_QUIET`` of them in a row found the calibration fresh (the drift stopped)."""
+        if stale or not self._drifting():
+            self._quiet = 0
+            return False
+        self._quiet += 1
+        if self._quiet <= self.DRIFT_QUIET:
+            return True
+        self._recentred, self._quiet = None, 0
+        return False
+
+    def _judge_points(self) -> Array:
+        """The samples a refit must not be worse on: the recent ones; under a re-centred calibration (a drift) also the
+        buffered ones since its fit, all the directions seen since (a refit on older, drifted samples in other
+        directions is no better, but the last seconds' few directions cannot tell)."""
+        pts = self._recent_points()
+        cal = self._cal
+        if cal is None or self._recentred is not cal or self._changed:
+            return pts
+        times = self._buffer.times()
+        return np.concatenate([pts, self._buffer.points()[times >= cal.stamp]])
+
+    def _drift_job(self, job: dict[str, Any], *, full: bool) -> dict[str, Any]:
+        """A recheck of a stale calibration: re-centre it first; ``full``: the full refit if that fails (validator passed)."""
+        cal = self._cal
+        assert cal is not None
+        times, pts = self._buffer.times(), self._buffer.points()
+        since = max(cal.stamp, job["t"] - self.config.recheck_interval_s)  # a drift moves on: the last recheck's worth
+        return {**job, "drift": True, "full": full, "fresh": pts[times >= since], "since": since,
+                "fitted_at": cal.stamp, "stale_note": self._stale_note}
+
+    def _drift_compute(self, job: dict[str, Any]) -> tuple[Calibration | None, str]:
+        """The current calibration re-centred on the samples since its fit (module docstring); off-lock, on the job."""
+        cur: Calibration = job["current"]
+        cfg = job["config"]
+        pts, recent = job["fresh"], job["recent"]
+        head = f"re-centring on the {len(pts)} samples since t={job['since']:.2f} s"
+        if len(pts) < self.DRIFT_MIN_POINTS or relative_spread(pts) < STATIC_SPREAD:
+            return None, f"{head}: too few directions"
+        w0 = np.asarray(cur.matrix, dtype=np.float64)
+        try:
+            e = fit(pts @ w0.T, model="eye", method="lm", norm=cur.norm, loss=cfg.loss, init="lin_auto",
+                    max_iter=cfg.max_iter, sensor=self.sensor, unit=cfg.unit)
+        except (ValueError, ArithmeticError) as exc:
+            return None, f"{head} failed: {exc}"
+        std = e.parameter_std()
+        worst = max((std.get(k, 0.0) for k in ("b_x", "b_y", "b_z")), default=0.0) / cur.norm
+        if not worst <= cfg.max_parameter_std:
+            return None, f"{head}: offset std {pct(worst)} > {pct(cfg.max_parameter_std)}"
+        cal = cur.replace(offset=np.linalg.solve(w0, e.offset), matrix=e.matrix @ w0, stats=e.stats, covariance=None,
+                          parameter_names=(), stamp=job["t"], method="lm")
+        reason = guard_rails(cal, cfg, recent, cur)
+        if reason:
+            return None, f"{head}: {reason}"
+        self._full_figures(job, cal)
+        job["note"] = (f"; re-centred: {job['stale_note']}; offset moved by "
+                       f"{pct(float(np.linalg.norm(cal.offset - cur.offset)) / cur.raw_radius)} of the field, the matrix kept")
+        job["recentred"] = cal
+        return cal, ""
+
+    def _drift_choice(self, job: dict[str, Any], recentred: tuple[Calibration | None, str],
+                      full: tuple[Calibration | None, str]) -> tuple[Calibration | None, str]:
+        """The first recheck of a stale calibration: the re-centring or the full refit, whichever fits the samples
+        since its fit better (a drift: the re-centring; a first calibration only poor where it had no data, which
+        also looks stale: the full refit on the wider buffer)."""
+        a, b = recentred[0], full[0]
+        if a is None or (b is not None and rms_relative(b, job["fresh"]) <= rms_relative(a, job["fresh"])):
+            job["recentred"], job["note"] = None, ""
+            return full if b is not None else (None, f"{full[1]}; {recentred[1]}")
+        self._full_figures(job, a)  # the full fit's replaced them
+        return recentred
 
     def _check_change(self, t: float) -> list[Event]:
         """Declare a change when the windowed median residual stays above the threshold long enough."""
@@ -73,6 +245,8 @@ class ChangeDetection:
         self._change_onset = onset
         self.changes += 1
         self._suspect_since = None
+        self._back_since = None
+        self._pre_change = (self._buffer.times(), self._buffer.points())  # back if the change passes (_check_return)
         pts = np.array(self._recent_v)[first_bad:]
         tt = times[first_bad:]
         self._buffer.clear()
@@ -88,6 +262,43 @@ class ChangeDetection:
         self._last_reason = msg
         events = [Event(EventKind.CHANGED, t, self.sensor, msg)]
         return events + self._set_state(State.COLLECTING, t)
+
+    def _check_return(self, t: float) -> list[Event]:
+        """After a declared change: withdraw it when the old calibration explains the samples again (module docstring)."""
+        cfg = self.config
+        k = cfg.change_window
+        resid = self._recent_r
+        if len(resid) < k or self._cal is None:
+            return []
+        med = float(np.median([resid[i] for i in range(len(resid) - k, len(resid))]))
+        limit = 0.5 * cfg.change_threshold
+        if med > limit:
+            self._back_since = None
+            return []
+        if self._back_since is None:
+            self._back_since = self._recent_t[-(k // 2) - 1]  # as for a change: the median crossed half-way in
+        back = self._back_since
+        if t - back < cfg.change_min_duration_s:
+            return []
+        cal, onset = self._cal, self._change_onset
+        saved, self._pre_change = self._pre_change, None
+        now_t, now_p = self._buffer.times(), self._buffer.points()
+        keep = np.abs(cal.norm_error(now_p)) / cal.norm <= cfg.outlier_threshold if len(now_p) else np.zeros(0, bool)
+        events = self._set_state(State.CALIBRATED, t)
+        self._install(cal)
+        buf = self._buffer
+        buf.clear()
+        for tt, pp in ((*saved,) if saved is not None else (np.zeros(0), np.zeros((0, 3))), (now_t[keep], now_p[keep])):
+            for ti, p in zip(tt.tolist(), pp.tolist(), strict=True):
+                buf.push_finite(ti, p[0], p[1], p[2])
+        self._since_eval = 0
+        msg = (f"no sensor change after all: the change at t={-1.0 if onset is None else onset:.2f} s passed; since "
+               f"t={back:.2f} s the calibration explains the samples again (median residual {pct(med)} <= {pct(limit)} "
+               f"for {t - back:.1f} s); it is kept, with the buffer of before the change and the {int(keep.sum())} "
+               "samples since that it explains")
+        log.info("%s: %s", self.sensor, msg)
+        self._last_reason = msg
+        return [*events, Event(EventKind.CALIBRATED, t, self.sensor, msg, cal)]
 
     def _no_change(self, first_bad: int, med: float) -> tuple[Calibration | None, str]:
         """Test a declared change against the no-change hypothesis: ``(calibration, text)`` when one explains all.

@@ -207,12 +207,17 @@ class Evaluation(PartialCalibration):
             self._backoff = self._backoff + 1 if self._unchanged(t, math.inf) else 0
             self._full_eval_t = t
         self._update_center()
+        stale = self._stale()  # a drift (change.py): the offset is refitted on the fresh samples
         self._last_full = self._signature()
+        if not force and self._drift_hold(stale):
+            return [], None
         n = len(self._buffer)
         if n < cfg.min_points:
             self._predicted = None
             self._last_reason = f"{n} samples buffered, need {cfg.min_points}"
             events = [Event(EventKind.REJECTED, t, self.sensor, f"not fitted: {self._last_reason}")] if force else []
+            if stale:
+                return events, self._drift_job(self._fit_job(t), full=False)
             return events, (self._partial_job(self._fit_job(t)) if self._partial_wanted() else None)
         self._indicators = self._buffer.indicators()
         try:
@@ -228,13 +233,15 @@ class Evaluation(PartialCalibration):
             events = [Event(EventKind.REJECTED, t, self.sensor, f"not fitted: {self._last_reason}")] if force else []
             if self._cal is None or self._changed:
                 events += self._set_state(State.COLLECTING, t)
+            if stale:
+                return events, self._drift_job(self._fit_job(t), full=False)
             if self._partial_wanted():  # what the motion makes observable (stream/observable.py)
                 return events, self._partial_job(self._fit_job(t))
             return events, None
         events = []
         if self._cal is None or self._changed:
             events += self._set_state(State.READY, t)
-        return events, self._fit_job(t)
+        return events, self._drift_job(self._fit_job(t), full=not self._drifting()) if stale else self._fit_job(t)
 
     @property
     def threshold(self) -> float:
@@ -251,16 +258,23 @@ class Evaluation(PartialCalibration):
 
     def _fit_job(self, t: float) -> dict[str, Any]:
         """A snapshot of what the fit needs (the fit itself may then run without the lock)."""
-        return {"t": t, "points": self._buffer.points(), "recent": self._recent_points(), "current": self._cal,
+        return {"t": t, "points": self._buffer.points(), "recent": self._judge_points(), "current": self._cal,
                 "config": self.config, "buffer": self._buffer, "changes": self.changes,
                 "current_is_map": self._cal is not None and self._partial is not None}
 
     def _fit_compute(self, job: dict[str, Any]) -> tuple[Calibration | None, str]:
         """The fit and its guard rails on a snapshot: (calibration, "") or (None, the reason)."""
-        cfg: PipelineConfig = job["config"]
-        pts = job["points"]
         if job.get("partial"):
             return self._partial_compute(job)
+        if job.get("drift"):  # a stale calibration (change.py): re-centred, or refitted if that fits the fresh data better
+            got = self._drift_compute(job)
+            return self._drift_choice(job, got, self._full_compute(job)) if job["full"] else got
+        return self._full_compute(job)
+
+    def _full_compute(self, job: dict[str, Any]) -> tuple[Calibration | None, str]:
+        """The full fit of the buffer and its guard rails."""
+        cfg: PipelineConfig = job["config"]
+        pts = job["points"]
         try:
             scale = None
             if cfg.f_scale_rel is not None:
@@ -291,13 +305,17 @@ class Evaluation(PartialCalibration):
         if cal is None:
             return self._reject(t, reason)
         self._install(cal)
+        self._recentred = cal if job.get("recentred") else None
+        if self._recentred is not None:
+            self._refresh_buffer(job["fitted_at"])
         note = self._partial_installed(job, cal)
         self._last_full = self._signature()
         self.fits_accepted += 1
         self._last_rejection = ""
         assert cal.stats is not None
-        msg = (f"calibrated from {len(job.get('series', job['points']))} samples: residual {pct(cal.stats.rms_relative)}, "
-               f"offset {np.array2string(cal.offset, precision=4)}{note}")
+        n = len(job["fresh"]) if job.get("recentred") else len(job.get("series", job["points"]))
+        msg = (f"calibrated from {n} samples: residual {pct(cal.stats.rms_relative)}, "
+               f"offset {np.array2string(cal.offset, precision=4)}{job.get('note', '')}{note}")
         log.info("%s: %s", self.sensor, msg)
         return [*self._set_state(State.CALIBRATED, t), Event(EventKind.CALIBRATED, t, self.sensor, msg, cal)]
 

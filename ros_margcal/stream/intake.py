@@ -11,7 +11,9 @@ objects (the node and the replay hand over what a message or a file held):
   ``min_magnitude`` is ``zero``, above ``max_magnitude`` ``magnitude`` (the last offending norm is kept
   in ``last_magnitude`` for the status). With ``learn_magnitude_samples`` > 0 (a unit without a known
   scale, such as counts) the first that many samples pass with any non-zero norm up to ``max_magnitude`` and their
-  median norm ``m`` sets the limits to ``[units.LEARN_LOW m, units.LEARN_HIGH m]`` (``learnt`` says so).
+  median norm ``m`` sets the limits to ``[units.LEARN_LOW m, units.LEARN_HIGH m]`` (``learnt`` says so). Limits
+  learnt from a bad start are relearnt (``units.RELEARN_SHARE`` of a window outside them; ``relearnt_now``
+  tells the calibrator, ``learnt`` the status), unless the current calibration's field (``expected``) lies within.
 - Stamps, the time base: a sample is on the current time base when its step from the last one is in
   ``(0, max_stamp_gap_s]``. An equal stamp is ``repeated_stamp``. A sample off the time base
   (behind it: ``backwards_stamp``; ahead by more than ``max_stamp_gap_s``: ``stamp_jump``) is dropped
@@ -27,26 +29,37 @@ objects (the node and the replay hand over what a message or a file held):
   in ``gyro_ignored``), so a broken gyro costs the gate's motion check or the fit's rate, never the samples.
 
 Every sample is counted once: ``seen == taken + sum(dropped.values())`` here; the calibrator adds
-``outlier`` (a taken sample it refuses later) to the same ``dropped``.
+``spike`` and ``outlier`` (taken samples it refuses later) to the same ``dropped``.
+
+``SpikeFilter`` is the magnetometer's check of a taken sample against its neighbours in time (the
+accelerometer's gate does that job for it). A field reading moves continuously as the sensor turns,
+so a sample that leaves the stream by far more than its usual step and comes straight back is a glitch
+(a bit error, a bus fault), whatever its magnitude: before a calibration exists nothing else can tell
+it from the field, and one such sample decided the buffer's centre (a linear sphere fit through it).
+A sample that steps more than ``FAR`` times the upper quartile of the last ``STEPS`` steps away from the
+last sample handed on is held (at most ``HOLD`` in a row); the next sample decides: back near the last one
+handed on (``BACK`` times nearer than both steps of the excursion) makes the held samples spikes,
+otherwise (a real jump: a magnet, a fast turn after rest) they go on, one to ``HOLD`` samples late.
 """
 
 from __future__ import annotations
 
 import math
 import numbers
+from collections import deque
 from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 
-from .config import PipelineConfig
-from .units import LEARN_HIGH, LEARN_LOW
+from .config import STATIC_SPREAD, PipelineConfig, relative_spread
+from .units import LEARN_HIGH, LEARN_LOW, RELEARN_FACTOR, RELEARN_SHARE
 
-__all__ = ["DROP_REASONS", "MAX_GYRO_RAD_S", "MAX_STAMP_S", "Intake"]
+__all__ = ["DROP_REASONS", "MAX_GYRO_RAD_S", "MAX_STAMP_S", "Intake", "Sample", "SpikeFilter"]
 
 DROP_REASONS = ("wrong_size", "bad_stamp", "nonfinite", "zero", "magnitude", "repeated_stamp", "backwards_stamp",
-                "stamp_jump", "burst", "outlier")
-"""Why a sample was dropped (the keys of ``dropped``); ``outlier`` is the calibrator's."""
+                "stamp_jump", "burst", "spike", "outlier")
+"""Why a sample was dropped (the keys of ``dropped``); ``spike`` (``SpikeFilter``) and ``outlier`` are the calibrator's."""
 
 MAX_STAMP_S = 1e12
 """Largest plausible |stamp|, s (ROS time fits in 2^32 s); keeps every stamp difference finite."""
@@ -55,6 +68,8 @@ MAX_GYRO_RAD_S = 100.0
 """Largest plausible angular rate, rad/s (5730 °/s: above the ±4000 °/s full scale of any MEMS gyro)."""
 
 Vec3 = tuple[float, float, float]
+Sample = tuple[float, float, float, float, Vec3 | None]
+"""A taken sample: ``(t, x, y, z, gyro or None)``."""
 
 
 def _real(v: Any) -> float | None:
@@ -127,6 +142,16 @@ class Intake:
         """The norm of the last sample dropped as ``zero`` or ``magnitude``."""
         self._learning: list[float] = []
         self._learnt: tuple[float, float, float] | None = None  # (median norm, low, high)
+        self._window_n = max(1, RELEARN_FACTOR * config.learn_magnitude_samples)
+        self._window: deque[Vec3 | None] = deque(maxlen=self._window_n)
+        self._outside = 0  # samples of the window outside the learnt limits (the samples; None: within)
+        self._recheck = 0  # samples to wait before the next relearn check after one refused
+        self._relearnt: tuple[int, float, float, float, float] | None = None  # times, t, old median, old low, old high
+        self._relearn_refused = False
+        self.relearnt_now = False
+        """Set by ``take`` when this sample made the intake relearn its limits (and is within the new ones)."""
+        self.expected: float | None = None
+        """The current calibration's typical raw norm (set by the calibrator): learnt limits that hold it are kept."""
 
     @property
     def limits(self) -> tuple[float, float]:
@@ -147,13 +172,22 @@ class Intake:
             return "" if not self.learning else (f"learning magnitude limits for unit {self.config.unit!r} "
                                                  f"({len(self._learning)} of {self.config.learn_magnitude_samples} samples)")
         m, lo, hi = self._learnt
-        return (f"unit {self.config.unit!r} has no known scale: magnitude limits [{lo:.4g}, {hi:.4g}] learnt from "
-                f"the first {self.config.learn_magnitude_samples} samples (median |v| {m:.4g}); no field-strength check")
+        n = self.config.learn_magnitude_samples
+        if self._relearnt is None:
+            how = f"learnt from the first {n} samples (median |v| {m:.4g})"
+        else:
+            k, t, m0, lo0, hi0 = self._relearnt
+            how = (f"relearnt at t={t:.2f} s{f' ({k}x)' if k > 1 else ''} from {n} samples (median |v| {m:.4g}): "
+                   f"at least {RELEARN_SHARE:.0%} of the last {self._window_n} samples were outside the limits "
+                   f"[{lo0:.4g}, {hi0:.4g}] learnt before (median |v| {m0:.4g})")
+        return (f"unit {self.config.unit!r} has no known scale: magnitude limits [{lo:.4g}, {hi:.4g}] {how}; "
+                "no field-strength check")
 
     def take(self, t: Any, xyz: Any, gyro: Any = None) -> tuple[float, Vec3, Vec3 | None] | None:
         """``(t, (x, y, z), gyro or None)`` when the sample is good, else None (the drop is counted)."""
         self.seen += 1
         self.new_base_step = None
+        self.relearnt_now = False
         got = self._check(t, xyz)
         if isinstance(got, str):
             self.dropped[got] += 1
@@ -183,12 +217,12 @@ class Intake:
         cfg = self.config
         learning = self.learning
         lo, hi = (0.0, cfg.max_magnitude) if learning else self.limits
-        if mag <= lo:
+        if not lo < mag <= hi:
             self.last_magnitude = mag
-            return "zero"
-        if mag > hi:
-            self.last_magnitude = mag
-            return "magnitude"
+            if self._learnt is None or not self._watch(v if mag else None, ts):
+                return "zero" if mag <= lo else "magnitude"
+        elif self._learnt is not None:
+            self._watch(None, ts)
         reason = self._stamp(ts)
         if reason:
             return reason
@@ -203,6 +237,40 @@ class Intake:
                 self._learning = []
         return ts, v
 
+    def _watch(self, v: Vec3 | None, t: float) -> bool:
+        """One more sample against learnt limits (``v`` when outside them and not zero, else None); True when
+        the limits were relearnt just now from the samples outside them and hold this one (``units``).
+
+        Not relearnt: while the current calibration's field lies within the limits (``expected``: the samples
+        are wrong, not the limits), nor from samples that do not turn (``STATIC_SPREAD``: a sensor that reads
+        its rails, saturated or stuck, for a while after a good start; a field at rest waits until it turns)."""
+        w = self._window
+        if len(w) == self._window_n and w[0] is not None:
+            self._outside -= 1
+        w.append(v)
+        if v is None:
+            return False
+        self._outside += 1
+        self._recheck -= 1
+        if len(w) < self._window_n or self._outside < RELEARN_SHARE * len(w) or self._recheck > 0:
+            return False
+        assert self._learnt is not None
+        m0, lo0, hi0 = self._learnt
+        n = self.config.learn_magnitude_samples
+        pts = np.array([u for u in w if u is not None], dtype=np.float64)
+        self._relearn_refused = self.expected is not None and lo0 < self.expected <= hi0
+        if self._relearn_refused or relative_spread(pts) < STATIC_SPREAD:
+            self._recheck = n  # both are slow to change: look again in a while (it costs a few tens of us)
+            return False
+        m = float(np.median(np.linalg.norm(pts[-n:], axis=1)))
+        self._learnt = (m, LEARN_LOW * m, LEARN_HIGH * m)
+        self._relearnt = (1 if self._relearnt is None else self._relearnt[0] + 1, t, m0, lo0, hi0)
+        w.clear()
+        self._outside = 0
+        mag = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+        self.relearnt_now = LEARN_LOW * m < mag <= LEARN_HIGH * m
+        return self.relearnt_now
+
     def drop_summary(self) -> str:
         """Why the samples were dropped, with the count, the offending norm, the limit and a hint ("" if none)."""
         total = sum(self.dropped.values())
@@ -213,13 +281,22 @@ class Intake:
         head = f"{total} of {self.seen} samples dropped"
         cfg = self.config
         lo, hi = self.limits
-        where = "learnt" if self._learnt is not None else f"{cfg.sensor}.{'max' if worst == 'magnitude' else 'min'}_magnitude"
+        bound = "max" if worst == "magnitude" else "min"
+        if self._learnt is not None:  # no option to change: the limits follow the data
+            where = "learnt"
+            hint = ("the calibration's field lies within the limits: these samples are not the field" if self._relearn_refused
+                    else f"the limits are relearnt once {RELEARN_SHARE:.0%} of the last {self._window_n} samples fall "
+                         "outside them")
+        else:
+            where = f"{cfg.sensor}.{bound}_magnitude"
+            hint = (f"set --unit to the recording's unit or {'raise' if bound == 'max' else 'lower'} "
+                    f"{cfg.sensor}.{bound}_magnitude")
         if worst == "magnitude" and self.last_magnitude is not None:
             return (f"{head}: {n} x |v| above the limit, last |v| = {self.last_magnitude:.4g} > {hi:.4g} {cfg.unit} "
-                    f"({where}); set --unit to the recording's unit or raise {cfg.sensor}.max_magnitude")
+                    f"({where}); {hint}")
         if worst == "zero" and self.last_magnitude is not None:
             return (f"{head}: {n} x |v| at or below the limit, last |v| = {self.last_magnitude:.4g} <= {lo:.4g} "
-                    f"{cfg.unit} ({where}); set --unit to the recording's unit or lower {cfg.sensor}.min_magnitude")
+                    f"{cfg.unit} ({where}); {hint}")
         return f"{head}: {n} x {worst}"
 
     def _stamp(self, t: float) -> str:
@@ -242,3 +319,114 @@ class Intake:
         self._off_last, self._off_count = None, 0
         self._last_t = t
         return ""
+
+
+class SpikeFilter:
+    """Held-back check of each taken magnetometer sample against its neighbours (see the module docstring).
+
+    ``push(sample)`` returns the samples to hand on now, in stamp order, and how many held ones were
+    spikes; ``pending`` samples are held; ``flush`` hands them on (a new time base). The first two samples
+    of a stream have no predecessor: they are held until the third, and one far from both others (``FAR``
+    times farther than those two are apart, or than ``FLOOR`` of their norm) is a spike.
+    """
+
+    FAR = 10.0
+    """A step beyond this many times the usual step (the upper quartile of the last ``STEPS``) holds the sample ..."""
+    STEPS = 16
+    """... those steps (between consecutive taken samples) ...,"""
+    FLOOR = 1e-2
+    """... the usual step at least this share of the last sample's norm and the smallest step seen that was not 0
+    (a quantised sensor at rest steps by 0 or by one count)."""
+    HOLD = 3
+    """Most samples held in a row: a longer excursion is the stream moving (a jump, a fast turn), handed on."""
+    BACK = 2.0
+    """The held samples are spikes when the next one is this many times nearer to the last sample handed on
+    than both the step into the excursion and the step out of it."""
+
+    def __init__(self) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the stream (a new time base): the next samples start one."""
+        self._anchor: Vec3 | None = None  # the last sample handed on
+        self._last: Vec3 = (0.0, 0.0, 0.0)  # the last sample taken
+        self._steps: deque[float] = deque(maxlen=self.STEPS)
+        self._quantum = math.inf  # the smallest step seen that was not 0
+        self._held: list[Sample] = []  # held back: the first samples of a stream, or a far step and what followed
+
+    @property
+    def pending(self) -> int:
+        """Samples held back."""
+        return len(self._held)
+
+    def flush(self) -> list[Sample]:
+        """The held samples, handed on (the filter keeps no sample)."""
+        out, self._held = self._held, []
+        return out
+
+    def push(self, sample: Sample) -> tuple[list[Sample], int]:
+        """``(samples to hand on now, spikes dropped)`` after one more taken sample."""
+        if self._anchor is None:
+            return self._start(sample)
+        _, x, y, z, _ = sample
+        v = (x, y, z)
+        step = self._step(v)
+        held, anchor = self._held, self._anchor
+        if held:
+            back = math.dist(anchor, v) * self.BACK
+            if back < math.dist(anchor, held[0][1:4]) and back < step:  # out and back: the held ones were spikes
+                n = len(held)
+                held.clear()
+                self._anchor = v
+                return [sample], n
+            if len(held) < self.HOLD:
+                held.append(sample)
+                return [], 0
+            out = [*held, sample]
+            held.clear()
+            self._anchor = v
+            return out, 0
+        if step > self._far():
+            held.append(sample)
+            return [], 0
+        self._anchor = v
+        return [sample], 0
+
+    def _step(self, v: Vec3) -> float:
+        """The step from the last sample taken to ``v`` (recorded after the usual step was read: ``_far``)."""
+        step = math.dist(self._last, v)
+        self._usual = sorted(self._steps)[(3 * len(self._steps)) // 4] if self._steps else step
+        self._steps.append(step)
+        if 0.0 < step < self._quantum:
+            self._quantum = step
+        self._last = v
+        return step
+
+    def _far(self) -> float:
+        """The step beyond which a sample is held: ``FAR`` times the usual step or its floor."""
+        a = self._anchor
+        assert a is not None
+        return self.FAR * max(self._usual, self._quantum, self.FLOOR * math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]))
+
+    def _start(self, sample: Sample) -> tuple[list[Sample], int]:
+        """The first three samples of a stream: drop the one far from both others, start the stream from the rest."""
+        held = self._held
+        held.append(sample)
+        if len(held) < 3:
+            return [], 0
+        s0, s1, s2 = held
+        p0, p1, p2 = s0[1:4], s1[1:4], s2[1:4]
+        d01, d12, d02 = math.dist(p0, p1), math.dist(p1, p2), math.dist(p0, p2)
+        held.clear()
+        floor = self.FLOOR * math.sqrt(p2[0] * p2[0] + p2[1] * p2[1] + p2[2] * p2[2])
+        if self.FAR * max(d12, floor) < min(d01, d02):
+            out, n = [s1], 1  # s0 a spike: s1 starts the stream
+        elif self.FAR * max(d02, floor) < min(d01, d12):
+            out, n = [s0], 1  # s1 a spike
+        else:
+            out, n = [s0, s1], 0
+            self._last = p0
+            self._step(p1)
+        self._anchor = self._last = out[-1][1:4]
+        more, k = self.push(s2)
+        return out + more, n + k

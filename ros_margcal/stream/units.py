@@ -10,11 +10,17 @@ make sense in a known unit:
 - an unknown unit (``counts``, ``LSB``, ``raw``, anything else) has no scale: the field-strength
   check is off and the intake learns its magnitude limits from the first samples
   (``LEARN_SAMPLES``, ``LEARN_LOW`` and ``LEARN_HIGH`` times their median norm), which the status says.
+  First samples that are not the field (a sensor not yet configured reads a few counts) would make
+  limits that drop every real reading: when ``RELEARN_SHARE`` of the last ``RELEARN_FACTOR`` times
+  ``LEARN_SAMPLES`` samples fall outside them, the limits are learnt again from those samples (not while a
+  calibration's field lies within the limits: then the samples, not the limits, are wrong; nor from samples
+  that do not turn: a saturated or stuck sensor after a good start).
 """
 
 from __future__ import annotations
 
-__all__ = ["ACCEL_UNITS", "GRAVITY", "LEARN_HIGH", "LEARN_LOW", "LEARN_SAMPLES", "MAG_UNITS", "unit_scale"]
+__all__ = ["ACCEL_UNITS", "GRAVITY", "LEARN_HIGH", "LEARN_LOW", "LEARN_SAMPLES", "MAG_UNITS", "RELEARN_FACTOR", "RELEARN_SHARE",
+           "unit_scale"]
 
 GRAVITY = 9.80665
 """Standard gravity, m/s²."""
@@ -32,6 +38,12 @@ LEARN_LOW = 1e-3
 LEARN_HIGH = 20.0
 """Upper magnitude limit in an unknown unit, times the learnt median norm (the ratio of the SI limits:
 1.4 mT over 70 µT for the magnetometer)."""
+RELEARN_FACTOR = 5
+"""Learnt limits are relearnt when ``RELEARN_SHARE`` of the last this many times ``learn_magnitude_samples``
+samples (100 at the defaults: 2 s at 50 Hz) fell outside them ..."""
+RELEARN_SHARE = 0.9
+"""... this share (nearly all: a few samples that pass, one bad stretch among real ones, do not stop it),
+from the norms of the last ``learn_magnitude_samples`` of them."""
 
 
 def unit_scale(sensor: str, unit: str) -> float | None:
