@@ -289,8 +289,7 @@ class Intake:
                          "outside them")
         else:
             where = f"{cfg.sensor}.{bound}_magnitude"
-            hint = (f"set --unit to the recording's unit or {'raise' if bound == 'max' else 'lower'} "
-                    f"{cfg.sensor}.{bound}_magnitude")
+            hint = f"set the raw unit: --unit in margcal replay and calibrate, {cfg.sensor}.unit in the node"
         if worst == "magnitude" and self.last_magnitude is not None:
             return (f"{head}: {n} x |v| above the limit, last |v| = {self.last_magnitude:.4g} > {hi:.4g} {cfg.unit} "
                     f"({where}); {hint}")

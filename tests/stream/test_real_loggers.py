@@ -72,7 +72,7 @@ def test_counts_read_as_tesla_say_why_every_sample_is_dropped(independent: Modul
     last = float(np.linalg.norm(rec["xyz"][-1]))
     assert f"{n} of {n} samples dropped" in st.message
     assert f"last |v| = {last:.4g} > 0.0014 T" in st.message
-    assert "set --unit" in st.message and "mag.max_magnitude" in st.message
+    assert "--unit" in st.message and "mag.unit in the node" in st.message and "mag.max_magnitude" in st.message
 
 
 def test_a_large_hard_iron_calibrates_and_the_old_limit_names_the_offset(independent: ModuleType) -> None:
@@ -137,7 +137,7 @@ def test_real_counts_read_as_tesla_say_why(real_recording: Callable[[str], Path]
     out = replay(path, sensor="mag", status_every=0.0, progress=False)
     st = out["calibrators"]["mag"].status()
     assert st.samples_passed == 0
-    assert f"{st.samples_seen} of {st.samples_seen} samples dropped" in st.message and "set --unit" in st.message
+    assert f"{st.samples_seen} of {st.samples_seen} samples dropped" in st.message and "set the raw unit" in st.message
 
 
 # -- a change must be a change ----------------------------------------------------------------------
