@@ -18,7 +18,6 @@ import logging
 import math
 import os
 import signal
-import tempfile
 import threading
 from collections.abc import Iterator
 from pathlib import Path
@@ -26,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from ..model.calibration_file import write_temp
 from ..model.errors import ConfigError
 from .core import Diagnosis
 from .twin import FIT_ERRORS
@@ -200,24 +200,6 @@ def _interrupts_held() -> Iterator[None]:
             signal.raise_signal(signal.SIGINT)  # as if it came now: KeyboardInterrupt under Python's own handler
 
 
-def _write_temp(target: Path, text: str) -> Path:
-    """``text`` in a temporary file beside ``target`` (flushed to disk), to be renamed over it."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; a report is readable like any other file
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
-    return Path(tmp)
-
-
 def _replace_together(contents: dict[Path, str]) -> None:
     """Write every ``{path: text}`` to a temporary file, then rename them all over their targets.
 
@@ -228,7 +210,7 @@ def _replace_together(contents: dict[Path, str]) -> None:
     temps: dict[Path, Path] = {}
     try:
         for path, text in contents.items():
-            temps[path] = _write_temp(path, text)
+            temps[path] = write_temp(path, text)
         with _interrupts_held():
             for path, tmp in temps.items():
                 os.replace(tmp, path)

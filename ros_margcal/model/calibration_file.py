@@ -44,7 +44,7 @@ from numpy.typing import NDArray
 from .calibration import Calibration
 from .errors import CalibrationFileError, one_line
 
-__all__ = ["calibration_from_yaml", "calibration_to_yaml", "load_calibrations", "save_calibrations"]
+__all__ = ["calibration_from_yaml", "calibration_to_yaml", "load_calibrations", "save_calibrations", "write_temp"]
 
 Array = NDArray[np.float64]
 
@@ -240,15 +240,8 @@ def save_calibrations(path: str | os.PathLike[str], cals: dict[str, Calibration]
     target = _save_target(given)
     text = _dump(cals, node)
     _remove_stale_temps(target)
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.{os.getpid()}.", suffix=".tmp", dir=target.parent)
+    tmp = write_temp(target, text, prefix=f".{target.name}.{os.getpid()}.")
     try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; a params file must be readable like any other
         os.replace(tmp, target)
     except BaseException:
         with contextlib.suppress(OSError):
@@ -256,6 +249,25 @@ def save_calibrations(path: str | os.PathLike[str], cals: dict[str, Calibration]
         raise
     _fsync_dir(target.parent)
     return given
+
+
+def write_temp(target: Path, text: str, prefix: str | None = None) -> Path:
+    """``text`` in a temporary file beside ``target``, on disk (fsync) and readable like any other file, to be
+    renamed over ``target``; removed again when the write fails."""
+    fd, tmp = tempfile.mkstemp(prefix=prefix or f".{target.name}.", suffix=".tmp", dir=target.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+    return Path(tmp)
 
 
 def _read_text(p: Path, where: str) -> str:

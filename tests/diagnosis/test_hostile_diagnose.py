@@ -166,7 +166,7 @@ def test_an_interrupt_while_the_files_are_written_leaves_the_old_pair(tmp_path: 
     """Ctrl-C while the second file is written (the first one done) leaves both old files and no temporary file."""
     write_report(_quick_diagnosis(10), tmp_path)
     old = _pair(tmp_path)
-    real = report_module._write_temp
+    real = report_module.write_temp
     calls: list[Path] = []
 
     def second_interrupted(target: Path, text: str) -> Path:
@@ -175,7 +175,7 @@ def test_an_interrupt_while_the_files_are_written_leaves_the_old_pair(tmp_path: 
             raise KeyboardInterrupt
         return real(target, text)
 
-    monkeypatch.setattr(report_module, "_write_temp", second_interrupted)
+    monkeypatch.setattr(report_module, "write_temp", second_interrupted)
     with pytest.raises(KeyboardInterrupt):
         write_report(_quick_diagnosis(12), tmp_path)
     assert len(calls) == 2
