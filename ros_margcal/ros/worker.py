@@ -153,20 +153,19 @@ def serve(inbox: Any, outbox: Any, specs: dict[str, tuple[PipelineConfig, Calibr
         if parent is not None and not parent.is_alive():
             return  # the parent is gone: no one reads what we would publish
         try:
-            if msg is None:
-                pass
-            elif msg[0] == "stop":
+            kind = None if msg is None else msg[0]
+            if kind == "stop":
                 return
-            elif msg[0] == "samples":
+            if kind == "samples":
                 cals.samples(msg[1])
-            else:
-                _, kind, request_id, args = msg
-                ok, text = cals.command(kind, args)
-                cals.flush()
+            elif kind == "request":
+                _, command, request_id, args = msg
+                ok, text = cals.command(command, args)
+                cals.flush()  # the calibration a command changed arrives before its answer
                 outbox.put(("reply", request_id, ok, text))
                 cals.status()
                 next_status = time.monotonic() + status_period_s
-            cals.flush()
+            cals.flush()  # also without input: held magnetometer samples whose wait is over
             if time.monotonic() >= next_status:
                 cals.status()
                 next_status = time.monotonic() + status_period_s
