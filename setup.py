@@ -27,7 +27,7 @@ setup(
         # ROS 2 Jazzy from PyPI wheels, for a machine without a ROS install; with an apt-installed, sourced
         # Jazzy leave this extra out (its rclpy is the one to use)
         "ros": ["ros-jazzy-rclpy", "ros-jazzy-rmw-fastrtps-cpp", "ros-jazzy-sensor-msgs", "ros-jazzy-diagnostic-msgs",
-                "ros-jazzy-std-srvs", "ros-jazzy-std-msgs"],
+                "ros-jazzy-std-srvs", "ros-jazzy-std-msgs", "ros-jazzy-visualization-msgs"],
     },
     # colcon test (ament_python) runs pytest when tests_require (or extras_require["test"]) names it
     tests_require=["pytest>=7", "hypothesis>=6"],

@@ -11,7 +11,9 @@ Topics (defaults, all remappable; REP-145 names, REP-103 units):
   ``/calib/status`` (diagnostic_msgs/DiagnosticArray, one status per sensor, every ``status_period_s``,
   with the rate received and the callback times; also on ``/diagnostics`` when ``publish_diagnostics``),
   and the current calibration on ``/calib/mag`` and ``/calib/accel`` (std_msgs/String with the
-  ``ros__parameters`` YAML, transient-local so late joiners get it).
+  ``ros__parameters`` YAML, transient-local so late joiners get it), and with ``publish_markers`` the live
+  view on ``/calib/markers`` (visualization_msgs/MarkerArray, every status period: buffered samples,
+  covered bins, the fitted ellipsoid, coloured by state; ``markers.py``) for RViz.
 
 Services (std_srvs/Trigger): ``~/reset`` (forget samples and calibrations), ``~/save`` (write the
 calibration file now), ``~/refit`` (validate and fit now; the validator and guard rails still decide).
@@ -64,6 +66,7 @@ from rclpy.task import Future
 from sensor_msgs.msg import Imu, MagneticField
 from std_msgs.msg import Header, String
 from std_srvs.srv import Trigger
+from visualization_msgs.msg import MarkerArray
 
 from ..model.calibration import Calibration
 from ..model.calibration_file import load_calibrations, save_calibrations
@@ -73,6 +76,7 @@ from ..stream.status import EventKind, Level, State, Status
 from ..stream.units import unit_scale
 from ..validation.shipped import load_validator
 from .environment import use_venv_ament_prefix
+from .markers import coverage_markers
 from .messages import calibrate_imu, calibrate_mag, calibration_to_string, imu_to_numpy, mag_to_numpy, status_to_diagnostic
 from .stamps import STAMP_SOURCES, StampSource
 from .worker import CalibrationWorker
@@ -249,6 +253,8 @@ class MargCalNode(Node):
         self.declare_parameter("publish_uncalibrated", False,
                                ParameterDescriptor(description="publish raw values on the calibrated topics until calibrated"))
         self.declare_parameter("publish_diagnostics", False, ParameterDescriptor(description="also publish on /diagnostics"))
+        self.declare_parameter("publish_markers", True, ParameterDescriptor(
+            description="publish the live view for RViz on /calib/markers (visualization_msgs/MarkerArray)", read_only=True))
         self.declare_parameter("status_period_s", 1.0, _fdesc(0.05, 60.0, "period of /calib/status, s", read_only=True))
         self.declare_parameter("stale_timeout_s", 5.0, _fdesc(0.1, 3600.0, "no samples for this long -> STALE, s"))
         self.declare_parameter("validator_file", "", ParameterDescriptor(
@@ -292,7 +298,10 @@ class MargCalNode(Node):
             self._status[s] = Status(s, Level.WARN, State.CALIBRATED if s in loaded else State.COLLECTING,
                                      "starting the calibration worker", 0.0, 0, 0, 0)
             self._pub_cal[s] = self.create_publisher(String, f"/calib/{s}", latched)
-        self._worker = CalibrationWorker(self._specs(), validator, float(self.get_parameter("status_period_s").value))
+        markers = bool(self.get_parameter("publish_markers").value)
+        self._worker = CalibrationWorker(self._specs(), validator, float(self.get_parameter("status_period_s").value),
+                                         views=markers)
+        self._pub_markers = self.create_publisher(MarkerArray, "/calib/markers", 1) if markers else None
         self._worker_started = time.monotonic()
         sensor_qos = QoSProfile(depth=int(self.get_parameter("queue_depth").value), history=HistoryPolicy.KEEP_LAST,
                                 reliability=ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.VOLATILE)
@@ -469,6 +478,8 @@ class MargCalNode(Node):
                 self._handle(item[1])
             elif kind == "status":
                 self._status.update(item[1])
+            elif kind == "view":
+                self._publish_markers(item[1])
             elif kind == "reply":
                 request = self._requests.pop(item[1], None)
                 if request is not None:
@@ -612,6 +623,16 @@ class MargCalNode(Node):
         return await self._ask_worker("refit", response)
 
     # -- status -----------------------------------------------------------------------------------
+
+    def _publish_markers(self, views: dict[str, Any]) -> None:
+        """The worker's views as one MarkerArray, each sensor in its frame (RViz's fixed frame: the sensor's)."""
+        if self._pub_markers is None or not self._pub_markers.get_subscription_count():
+            return
+        out = MarkerArray()
+        stamp = self.get_clock().now().to_msg()
+        for s, view in sorted(views.items()):
+            out.markers.extend(coverage_markers(view, Header(stamp=stamp, frame_id=self._traffic[s].frame or f"margcal_{s}")).markers)
+        self._pub_markers.publish(out)
 
     def _publish_status(self) -> None:
         self._check_worker()

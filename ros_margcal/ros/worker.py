@@ -14,6 +14,7 @@ the Imu rate nearest in stamp (``pairing.RatePairing``).
 - ``("calibration", sensor, Calibration | None)``: the current calibration changed (a fit, a reset);
 - ``("event", Event)``: what ``push`` and ``refit`` reported;
 - ``("status", {sensor: Status})``: at most every ``status_period_s`` and after each command;
+- ``("view", {sensor: CoverageView})``: with each status when ``views`` (the node's RViz markers);
 - ``("reply", request_id, success, message)``: the answer to a ``request``;
 - ``("error", text)``: an exception in the worker, which goes on with the next message.
 
@@ -38,6 +39,7 @@ from ..model.errors import MargCalError
 from ..stream.calibrator import SensorCalibrator
 from ..stream.config import GYRO_PAIR_S, PipelineConfig
 from ..stream.status import EventKind
+from ..stream.view import coverage_view
 from .pairing import RatePairing
 
 __all__ = ["CalibrationWorker", "Sample", "serve"]
@@ -61,7 +63,9 @@ def _context() -> Any:
 class _Calibrators:
     """The worker's side: one ``SensorCalibrator`` per sensor, the rate pairing, what was last sent."""
 
-    def __init__(self, specs: dict[str, tuple[PipelineConfig, Calibration | None]], validator: Any, outbox: Any) -> None:
+    def __init__(self, specs: dict[str, tuple[PipelineConfig, Calibration | None]], validator: Any, outbox: Any,
+                 views: bool = False) -> None:
+        self.views = views
         self.cals = {s: SensorCalibrator(s, cfg, calibration=cal, validator=validator) for s, (cfg, cal) in specs.items()}
         self.pairing = RatePairing(GYRO_PAIR_S)
         self.outbox = outbox
@@ -107,6 +111,8 @@ class _Calibrators:
 
     def status(self) -> None:
         self.outbox.put(("status", {s: c.status() for s, c in self.cals.items()}))
+        if self.views:
+            self.outbox.put(("view", {s: coverage_view(c) for s, c in self.cals.items()}))
 
     def command(self, kind: str, args: tuple[Any, ...]) -> tuple[bool, str]:
         if kind == "configure":
@@ -136,11 +142,11 @@ class _Calibrators:
 
 
 def serve(inbox: Any, outbox: Any, specs: dict[str, tuple[PipelineConfig, Calibration | None]], validator: Any,
-          status_period_s: float) -> None:
+          status_period_s: float, views: bool = False) -> None:
     """The worker process: take samples and commands from ``inbox`` until ``stop`` (see the module docstring)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole process group: the node stops us
     parent = multiprocessing.parent_process()  # the node's process (with forkserver too), via its sentinel
-    cals = _Calibrators(specs, validator, outbox)
+    cals = _Calibrators(specs, validator, outbox, views)
     cals.status()
     next_status = time.monotonic() + status_period_s
     while True:
@@ -182,11 +188,13 @@ class CalibrationWorker:
         specs: per sensor, its options and the calibration to start from (None: uncalibrated).
         validator: the validator object (None: the shipped one).
         status_period_s: how often the worker sends the status.
+        views: send a ``CoverageView`` per sensor with each status (the node's markers).
     """
 
     def __init__(self, specs: dict[str, tuple[PipelineConfig, Calibration | None]], validator: Any,
-                 status_period_s: float) -> None:
+                 status_period_s: float, views: bool = False) -> None:
         self._ctx = _context()
+        self._views = bool(views)
         self._validator = validator
         self._period = float(status_period_s)
         self._requests = 0
@@ -197,7 +205,7 @@ class CalibrationWorker:
         self._inbox = self._ctx.Queue()
         self._outbox = self._ctx.Queue()
         self._proc = self._ctx.Process(target=serve, name="margcal-worker", daemon=True,
-                                       args=(self._inbox, self._outbox, specs, self._validator, self._period))
+                                       args=(self._inbox, self._outbox, specs, self._validator, self._period, self._views))
         self._proc.start()
 
     @property

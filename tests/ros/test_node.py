@@ -28,9 +28,11 @@ from rclpy.node import Node  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
+from visualization_msgs.msg import Marker, MarkerArray  # noqa: E402
 
 from ros_margcal.model.calibration import Calibration  # noqa: E402
 from ros_margcal.model.calibration_file import save_calibrations  # noqa: E402
+from ros_margcal.ros.markers import STATE_COLOURS, rotation_quaternion  # noqa: E402
 from ros_margcal.ros.messages import calibration_from_string, mag_to_numpy  # noqa: E402
 from ros_margcal.ros.node import MargCalNode  # noqa: E402
 from ros_margcal.sim import simulation as sim  # noqa: E402
@@ -179,6 +181,49 @@ def test_status_calibration_topic_and_calibrated_stream(harness: Harness, stream
     assert out.header.frame_id == "imu_link"
     assert np.any(np.isclose(stream.t, t_out, atol=1e-6))
     assert abs(np.linalg.norm(h) - cal.norm) < 0.05 * cal.norm
+
+
+def test_rviz_markers_show_the_buffer_and_the_fit(harness: Harness, stream: sim.Recording) -> None:
+    """/calib/markers: before data no samples and no ellipsoid; once calibrated the buffered samples (one per
+    POINTS point, about one field radius from the centre), the covered bins, the fitted ellipsoid as a rotated
+    SPHERE in the sensor's frame, all in the state's colour."""
+    arrays: list[Any] = []
+    harness.peer.create_subscription(MarkerArray, "/calib/markers", arrays.append, 10)
+
+    def mag_markers() -> dict[int, Any]:
+        return {m.id: m for m in arrays[-1].markers if m.ns == "margcal/mag"}
+
+    assert harness.spin_until(lambda: bool(arrays), 5.0), "no MarkerArray on /calib/markers"
+    first = mag_markers()
+    assert first[0].type == Marker.POINTS and not first[0].points and first[2].action == Marker.DELETE
+    assert "collecting" in first[3].text
+    harness.publish(stream)
+    assert harness.spin_until(lambda: "calibrated" in mag_markers()[3].text, 5.0)
+    m = mag_markers()
+    assert all(x.header.frame_id == "imu_link" for x in m.values())
+    pts = np.array([[p.x, p.y, p.z] for p in m[0].points])
+    assert len(pts) > 100 and 0.9 < np.median(np.linalg.norm(pts, axis=1)) < 1.1
+    colour = (m[0].color.r, m[0].color.g, m[0].color.b)
+    assert np.allclose(colour, STATE_COLOURS["calibrated"])
+    assert m[1].type == Marker.CUBE_LIST and 0 < len(m[1].points) <= harness.node.configs["mag"].n_bins
+    sphere = m[2]
+    assert sphere.type == Marker.SPHERE and sphere.action == Marker.ADD and sphere.color.a < 1.0
+    assert all(1.4 < d < 2.6 for d in (sphere.scale.x, sphere.scale.y, sphere.scale.z))  # a diameter of about 2
+    q = sphere.pose.orientation
+    assert abs(q.x**2 + q.y**2 + q.z**2 + q.w**2 - 1.0) < 1e-9
+
+
+def test_marker_quaternion_is_the_rotation() -> None:
+    """``rotation_quaternion`` inverts the quaternion-to-matrix formula for rotations near every pivot."""
+    rng = np.random.default_rng(5)
+    for _ in range(200):
+        q = rng.normal(size=4)
+        x, y, z, w = q / np.linalg.norm(q)
+        r = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                      [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                      [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+        got = np.array(rotation_quaternion(r))
+        assert min(np.abs(got - [x, y, z, w]).max(), np.abs(got + [x, y, z, w]).max()) < 1e-9
 
 
 def test_late_joiner_gets_the_calibration_and_file_is_written(harness: Harness, stream: sim.Recording, tmp_path: Path) -> None:
