@@ -631,7 +631,8 @@ class MargCalNode(Node):
         out = MarkerArray()
         stamp = self.get_clock().now().to_msg()
         for s, view in sorted(views.items()):
-            out.markers.extend(coverage_markers(view, Header(stamp=stamp, frame_id=self._traffic[s].frame or f"margcal_{s}")).markers)
+            frame = self._traffic[s].frame or f"margcal_{s}"  # no message yet: a frame RViz can still be set to
+            out.markers.extend(coverage_markers(view, Header(stamp=stamp, frame_id=frame)).markers)
         self._pub_markers.publish(out)
 
     def _publish_status(self) -> None:

@@ -222,8 +222,8 @@ def test_marker_quaternion_is_the_rotation() -> None:
         r = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
                       [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
                       [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
-        got = np.array(rotation_quaternion(r))
-        assert min(np.abs(got - [x, y, z, w]).max(), np.abs(got + [x, y, z, w]).max()) < 1e-9
+        got, want = np.array(rotation_quaternion(r)), np.array([x, y, z, w])
+        assert min(np.abs(got - want).max(), np.abs(got + want).max()) < 1e-9  # q and -q: one rotation
 
 
 def test_late_joiner_gets_the_calibration_and_file_is_written(harness: Harness, stream: sim.Recording, tmp_path: Path) -> None:
