@@ -128,17 +128,23 @@ class _Calibrators:
             return True, f"reset {sorted(self.cals)}: collecting"
         if kind == "refit":
             self._push_mag(self.pairing.release(time.monotonic(), everything=True))
-            messages, ok = [], False
-            for s, c in self.cals.items():
-                events = c.refit()
-                for ev in events:
-                    self.event(ev)
-                done = [e for e in events if e.kind in (EventKind.CALIBRATED, EventKind.REJECTED)]
-                ok = ok or any(e.kind is EventKind.CALIBRATED for e in done)
-                messages.append(f"{s}: " + ("; ".join(e.message for e in done) or c.status().message))
-            return ok, " | ".join(messages)
+            messages = [self._refit(s, c) for s, c in self.cals.items()]
+            return all(c.calibration is not None for c in self.cals.values()), " | ".join(messages)
         msg = f"unknown worker command {kind!r}"
         raise MargCalError(msg)
+
+    def _refit(self, s: str, c: SensorCalibrator) -> str:
+        """Refit one sensor; what happened: a new calibration, the current one kept (a fit no better), or why none."""
+        events = c.refit()
+        for ev in events:
+            self.event(ev)
+        new = [e.message for e in events if e.kind is EventKind.CALIBRATED]
+        refused = "; ".join(e.message for e in events if e.kind is EventKind.REJECTED)
+        if new:
+            return f"{s}: {'; '.join(new)}"
+        if c.calibration is not None:
+            return f"{s}: kept the current calibration" + (f" ({refused})" if refused else "")
+        return f"{s}: {refused or c.status().message}"
 
 
 def serve(inbox: Any, outbox: Any, specs: dict[str, tuple[PipelineConfig, Calibration | None]], validator: Any,

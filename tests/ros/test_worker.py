@@ -110,6 +110,24 @@ class _Outbox(list):
         self.append(item)
 
 
+def test_refit_succeeds_when_every_sensor_ends_calibrated(stream: sim.Recording) -> None:
+    """~/refit's answer: success when each sensor holds a calibration afterwards, a fit no better than the
+    current one keeping it (said so); failure with the reason while a sensor is uncalibrated."""
+    cals = _Calibrators({"mag": (PipelineConfig.for_sensor("mag"), None)}, None, _Outbox())
+    ok, text = cals.command("refit", ())
+    assert not ok and text.startswith("mag: ") and "need" in text
+    cals.samples(_samples(stream))
+    time.sleep(0.3)  # the pairing holds a magnetometer sample up to 0.25 s for an Imu rate
+    cals.flush()
+    assert cals.cals["mag"].calibration is not None
+    current = cals.cals["mag"].calibration
+    ok, text = cals.command("refit", ())
+    assert ok, text
+    assert text.startswith("mag: ") and ("kept the current calibration" in text or "calibrat" in text)
+    if "kept" in text:
+        assert cals.cals["mag"].calibration is current
+
+
 def test_gyro_pairing_in_the_worker_ignores_callback_order() -> None:
     """The magnetometer's gyro rows are the same whether each Imu message comes before or after its
     MagneticField message; a magnetometer in another frame gets no rate."""
