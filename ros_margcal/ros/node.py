@@ -71,7 +71,7 @@ from visualization_msgs.msg import MarkerArray
 from ..model.calibration import Calibration
 from ..model.calibration_file import load_calibrations, save_calibrations
 from ..model.errors import CalibrationFileError, ConfigError
-from ..stream.config import PipelineConfig
+from ..stream.config import PipelineConfig, plausibility
 from ..stream.status import EventKind, Level, State, Status
 from ..stream.units import unit_scale
 from ..validation.shipped import load_validator
@@ -185,8 +185,8 @@ def _publishable(v: Any, limits: tuple[float, float]) -> bool:
 
 def _implausible(cal: Calibration, sensor: str, cfg: PipelineConfig) -> str:
     """Why a calibration read from a file does not fit this node's sensor (empty when it does): another sensor,
-    another unit (a file of ``margcal calibrate --unit uT`` would publish fields 1e6 too large) or a field norm
-    beyond the guard rail."""
+    another unit (a file of ``margcal calibrate --unit uT`` would publish fields 1e6 too large), a field norm
+    beyond the guard rail, or an offset or gains the node would refuse from its own fit."""
     if cal.sensor and cal.sensor != sensor:
         return f"it is a calibration of the {cal.sensor}"
     if cal.unit and unit_scale(sensor, cal.unit) != unit_scale(sensor, cfg.unit):
@@ -194,7 +194,10 @@ def _implausible(cal: Calibration, sensor: str, cfg: PipelineConfig) -> str:
                 f"calibrate the recording in {cfg.unit}")
     if not cfg.norm_min <= cal.norm <= cfg.norm_max:
         return f"its field norm {cal.norm:.6g} {cfg.unit} is outside [{cfg.norm_min:.6g}, {cfg.norm_max:.6g}] {cfg.unit}"
-    return ""
+    # the guard rails of the node's own fits (offset, gains, field radius): a runaway batch fit is not published;
+    # the parameter uncertainty is left out (a partial calibration's vertical terms are the prior's, and wide)
+    why = plausibility(cal.replace(covariance=None, parameter_names=()), cfg)
+    return f"it fails the guard rails of the node's own fits: {why}" if why else ""
 
 
 class _Traffic:

@@ -380,15 +380,20 @@ def _calibrate(harness: Harness, stream: sim.Recording) -> Calibration:
     return harness.node.calibrations["mag"]
 
 
-@pytest.mark.parametrize("case", ["uT", "accel", "norm"])
+@pytest.mark.parametrize("case", ["uT", "accel", "norm", "offset", "gains"])
 def test_a_calibration_file_that_does_not_fit_the_sensor_is_refused(context: Context, classes: MessageClasses,
                                                                    tmp_path: Path, case: str) -> None:
     """A file of another unit (a `margcal calibrate --unit uT` file would publish fields 1e6 too large), of the
-    accelerometer under `mag`, or with an implausible field norm: refused, the node starts uncalibrated."""
+    accelerometer under `mag`, with an implausible field norm, or beyond the offset or gain guard rails (a runaway
+    batch fit): refused, the node starts uncalibrated."""
     path = tmp_path / "cal.yaml"
     cal = {"uT": Calibration.identity(50.0, sensor="mag", unit="uT"),
            "accel": Calibration.identity(9.81, sensor="accel", unit="m/s^2"),
-           "norm": Calibration.identity(5e-3, sensor="mag", unit="T")}[case]
+           "norm": Calibration.identity(5e-3, sensor="mag", unit="T"),
+           # a runaway batch fit (a car's ring): offset 67 field norms; gains 0.5-1.9 about a plausible norm
+           "offset": Calibration(offset=np.array([3.3e-3, 0.0, 0.0]), matrix=np.eye(3), norm=50e-6, sensor="mag", unit="T"),
+           "gains": Calibration(offset=np.zeros(3), matrix=np.diag([0.5, 1.1, 1.9]), norm=50e-6, sensor="mag", unit="T"),
+           }[case]
     save_calibrations(path, {"mag": cal})
     h = Harness(context, classes, path)
     try:
