@@ -17,7 +17,7 @@ from ..model.errors import MargCalError, one_line
 
 __all__ = ["main"]
 
-_COMMAND_MODULES = ("simulate", "calibrate", "replay", "validator", "diagnose", "demo")
+_COMMAND_MODULES = ("simulate", "calibrate", "replay", "validator", "diagnose", "demo", "watch")
 BENCH_AREAS = ("fitting", "coverage", "pipeline", "diagnosis")
 
 

@@ -12,7 +12,7 @@ The package's main job end to end without hardware, in three processes:
   calibrations to ``<run dir>/truth.yaml`` and logs to ``<run dir>/driver.log``;
 - this process: a node on ``/calib/status``, ``/calib/mag`` and ``/calib/accel`` that shows one block per sensor
   (state, message, samples, rate, coverage, predicted error, residual), redrawn in place on a terminal and
-  printed every ``PLAIN_REFRESH_S`` seconds otherwise.
+  printed every few seconds otherwise (``watch.Display``, shared with ``margcal watch``).
 
 It stops when both sensors are calibrated (exit 0) or after ``--timeout`` seconds (exit 1, naming the sensor that
 did not calibrate and its last status), then compares each calibration with the simulated truth. The children are
@@ -33,15 +33,14 @@ from __future__ import annotations
 import argparse
 import math
 import os
-import shutil
 import signal
 import subprocess
 import sys
 import tempfile
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, TextIO
+from typing import Any
 
 import numpy as np
 
@@ -50,17 +49,15 @@ from ..model.calibration_file import calibration_from_yaml, load_calibrations, s
 from ..model.errors import CalibrationFileError, ConfigError
 from ..recordings.recording import Recording
 from ..sim import simulation as sim
+from .watch import Display, SensorView, format_block, update_views
 
-__all__ = ["DEFAULT_SEED", "MOTION", "SensorView", "format_block", "register", "run", "simulate_imu"]
+__all__ = ["DEFAULT_SEED", "MOTION", "register", "run", "simulate_imu"]
 
 SENSORS = ("mag", "accel")
 DEFAULT_SEED = 7
 RATE_HZ = 100.0
 """Rate of each simulated stream, Hz."""
 STATUS_PERIOD_S = 0.5
-TTY_REFRESH_S = 0.5
-PLAIN_REFRESH_S = 5.0
-"""Without a terminal, a block is printed this often, s."""
 STOP_S = 10.0
 """A child that has not ended this long after SIGTERM is killed, s."""
 MOTION: dict[str, Any] = {"still_fraction": 0.75, "still_s": (1.2, 1.8), "max_rate_dps": 250.0}
@@ -68,41 +65,6 @@ MOTION: dict[str, Any] = {"still_fraction": 0.75, "still_s": (1.2, 1.8), "max_ra
 150 deg/s, leaves the accelerometer uncalibrated for about 50 s; with these, about 30 s)."""
 ROS_MISSING = ("margcal demo: error: rclpy is not importable: install the ROS extra (pip install -e '.[ros]') "
                "or source a ROS 2 Jazzy setup (source /opt/ros/jazzy/setup.bash)")
-_LEVELS = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}
-
-
-@dataclass
-class SensorView:
-    """The last status of one sensor from ``/calib/status``; when it was first calibrated (demo time, s) and
-    the samples it had seen then."""
-
-    level: int = -1
-    message: str = "waiting for /calib/status"
-    values: dict[str, str] = field(default_factory=dict)
-    calibrated_at: float | None = None
-    calibrated_samples: str = ""
-
-    @property
-    def state(self) -> str:
-        """The ``state`` value (collecting, ready, calibrated, rejected), ``-`` before the first status."""
-        return self.values.get("state", "-")
-
-
-def _percent(text: str | None, digits: int) -> str:
-    try:
-        x = float(text or "")
-    except ValueError:
-        return "-"
-    return f"{100 * x:.{digits}f} %" if math.isfinite(x) else "-"
-
-
-def format_block(sensor: str, view: SensorView) -> list[str]:
-    """The three lines of one sensor's status (pure: the live view and the plain printout both use it)."""
-    v = view.values
-    return [f"{sensor:<6s}{view.state:<11s} {_LEVELS.get(view.level, '-'):<5s} {view.message}",
-            f"      samples {v.get('samples_seen') or '-'} (received {v.get('received') or '-'}, "
-            f"{v.get('rate_hz') or '-'} Hz), coverage {_percent(v.get('coverage'), 0)}",
-            f"      predicted error {_percent(v.get('predicted_error'), 2)}, residual {_percent(v.get('residual'), 3)}"]
 
 
 def _screen(views: dict[str, SensorView], elapsed: float, timeout: float) -> list[str]:
@@ -110,30 +72,6 @@ def _screen(views: dict[str, SensorView], elapsed: float, timeout: float) -> lis
     for s in SENSORS:
         lines += format_block(s, views[s])
     return lines
-
-
-class _Display:
-    """Redraws the screen in place on a terminal (ANSI cursor moves); otherwise prints it every few seconds."""
-
-    def __init__(self, out: TextIO) -> None:
-        self.out = out
-        self.tty = out.isatty()
-        self.drawn = 0
-        self.last = -math.inf
-
-    def show(self, lines: list[str], now: float, *, force: bool = False) -> None:
-        if not force and now - self.last < (TTY_REFRESH_S if self.tty else PLAIN_REFRESH_S):
-            return
-        self.last = now
-        if self.tty:
-            width = max(20, shutil.get_terminal_size().columns - 1)  # no wrapped line: the cursor moves count lines
-            up = f"\x1b[{self.drawn}F" if self.drawn else ""
-            self.out.write(up + "".join(f"\x1b[2K{line[:width]}\n" for line in lines))
-            self.drawn = len(lines)
-        else:
-            self.out.write(("\n" if self.drawn else "") + "\n".join(lines) + "\n")
-            self.drawn = len(lines)
-        self.out.flush()
 
 
 # -- the driver process ------------------------------------------------------------------------------------------
@@ -229,17 +167,7 @@ def _watch(children: dict[str, subprocess.Popen[bytes]], logs: dict[str, Path], 
     start = time.monotonic()
 
     def on_status(msg: Any) -> None:
-        for st in msg.status:
-            s = st.name.removeprefix("margcal: ")
-            if s in out.views:
-                level = st.level[0] if isinstance(st.level, (bytes, bytearray)) else int(st.level)
-                old = out.views[s]
-                view = SensorView(level, st.message, {kv.key: kv.value for kv in st.values}, old.calibrated_at,
-                                  old.calibrated_samples)
-                if view.state == "calibrated" and view.calibrated_at is None:
-                    view.calibrated_at = time.monotonic() - start
-                    view.calibrated_samples = view.values.get("samples_seen", "")
-                out.views[s] = view
+        update_views(out.views, msg, time.monotonic() - start, add=False)
 
     def on_calibration(s: str) -> Any:
         def take(msg: Any) -> None:
@@ -253,7 +181,7 @@ def _watch(children: dict[str, subprocess.Popen[bytes]], logs: dict[str, Path], 
     rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)  # Ctrl-C: a KeyboardInterrupt here
     executor = SingleThreadedExecutor(context=context)
     node = None
-    display = _Display(sys.stdout)
+    display = Display(sys.stdout)
     try:
         node = Node("margcal_demo_monitor", context=context)
         executor.add_node(node)

@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from ros_margcal.cli import main
-from ros_margcal.cli.demo import SensorView, format_block
+from ros_margcal.cli.watch import SensorView, format_block
 
 
 def test_format_block_shows_state_samples_rate_coverage_errors() -> None:

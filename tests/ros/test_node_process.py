@@ -111,3 +111,25 @@ def test_status_says_the_rate_received(node_process: subprocess.Popen[str]) -> N
             driver.communicate(timeout=30)
     finally:
         listener.close()
+
+
+def test_margcal_watch_shows_the_running_node(node_process: subprocess.Popen[str]) -> None:
+    """``margcal watch --once``, in a process of its own as a user runs it, prints one block per sensor of the
+    running node (state, samples, rate) and exits 0."""
+    code = "import sys; from ros_margcal.cli import main; sys.exit(main(sys.argv[1:]))"
+    done = subprocess.run([sys.executable, "-c", code, "watch", "--once", "--timeout", "30"], capture_output=True,
+                          text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    lines = done.stdout.splitlines()
+    assert lines[0].startswith("margcal watch /calib/status")
+    blocks = {line.split()[0]: line for line in lines[1:] if not line.startswith(" ")}
+    assert set(blocks) == {"mag", "accel"} and all("collecting" in b for b in blocks.values()), lines
+    assert any("samples 0 (received 0" in line for line in lines), lines
+
+
+def test_margcal_watch_without_a_node_says_so() -> None:
+    """No status on the topic within ``--timeout``: exit 1 and a line asking whether the node runs."""
+    code = "import sys; from ros_margcal.cli import main; sys.exit(main(sys.argv[1:]))"
+    done = subprocess.run([sys.executable, "-c", code, "watch", "--once", "--timeout", "2", "--topic", "/calib/nobody"],
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 1 and "no status on /calib/nobody" in done.stderr, (done.returncode, done.stderr)
