@@ -4,7 +4,8 @@ For every recording (its raw unit from the README there): replay it through ``Se
 ``margcal replay FILE --sensor S --unit U`` does) and fit the whole file as ``margcal calibrate FILE
 --model sym --method lm`` does (with its diagnosis when the plain fit fails or is implausible:
 static, a located offset change, the prior fit on partial coverage). The table gives the stream's
-final state and why, the time to its first calibration, and, where both calibrated, the offset
+final state and why (for a recording that does not calibrate, a short true reason: one static pose, moved
+throughout, a sensor change, else the final status), the time to its first calibration, and, where both calibrated, the offset
 difference in % of the field and the heading p95 of the stream's calibration against the batch fit's
 (level and 30° tilt, 60° inclination, 72 yaws; magnetometer only).
 
@@ -34,6 +35,8 @@ from ros_margcal.model.errors import ConvergenceError, DegenerateDataError, Reco
 from ros_margcal.model.fitting import fit
 from ros_margcal.model.heading import attitudes
 from ros_margcal.recordings.read import read_recording
+from ros_margcal.stream.calibrator import SensorCalibrator
+from ros_margcal.stream.config import STATIC_SPREAD, relative_spread
 from ros_margcal.stream.replay import replay
 from ros_margcal.stream.status import State
 
@@ -121,7 +124,28 @@ def study(path: Path) -> dict[str, object]:
             row["tilt30"] = heading_p95_against(stream, ref, 30.0)
     if st.state is State.CALIBRATED and not st.message.startswith("calibrated"):
         row["why"] = st.message
+    if st.state is not State.CALIBRATED:
+        row["why"] = reason(path, sensor, cal, out["timeline"])
     return row
+
+
+def reason(path: Path, sensor: str, cal: SensorCalibrator, timeline: list[dict[str, object]]) -> str:
+    """A short true reason why the stream did not calibrate ``path``, from the data, then the final status."""
+    raw = np.asarray(read_recording(path, sensor=sensor).raw, dtype=np.float64)
+    spread = relative_spread(raw)
+    if spread < STATIC_SPREAD:
+        return (f"one static pose (the whole recording within {100 * spread:.2g} % of its mean): it fixes the norm, "
+                "not the ellipsoid's 9 parameters; calibrating needs >= 9 poses")
+    gate = getattr(cal, "_gate", None)
+    if sensor == "accel" and cal.kept == 0 and gate is not None:
+        return (f"moved all through the recording: no {gate.window_s:g} s window still (last window CV "
+                f"{gate.window_stats[0]:.3g}, axis spread {gate.window_stats[1]:.3g}; the learnt gate's cap is "
+                f"{gate.plain.learn_cap:.3g}): no still pose for an accelerometer fit")
+    changed = [e for e in timeline if e.get("kind") == "changed"]
+    if changed:
+        return (f"a sensor change at t={float(changed[-1]['t']):.0f} s{' (a magnet attached)' if 'magnet' in path.name else ''}, too little turning "
+                f"after it to calibrate the changed sensor; final status: {cal.status().message}")
+    return f"final status: {cal.status().message}"
 
 
 def soft_iron_survey(data: Path) -> None:
@@ -161,8 +185,8 @@ def main(argv: list[str] | None = None) -> int:
     print("| --- | --- | --- | --- | --- | --- | --- | --- |")
     for r in rows:
         why = str(r["why"]).replace("|", "/")
-        if len(why) > 160:
-            why = why[:157] + "..."
+        if len(why) > 220:
+            why = why[:217] + "..."
         print(f"| {r['file']} | {r['unit']} | {r['state']}{' (' + str(r['changes']) + ' change)' if r['changes'] else ''}"
               f" | {_f(r['first'], '{:.0f} s')} | {why} | {r['batch']} | {_f(r['offset'], '{:.2f} %')} | "
               f"{_f(r['level'], '{:.2f}°')} / {_f(r['tilt30'], '{:.2f}°')} |")

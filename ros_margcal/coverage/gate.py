@@ -22,7 +22,8 @@ the window mean on every axis, and the newest sample within ``outlier_factor`` t
 stretch starts, its start is moved past the last sample of the window that breaks the latter bound
 (the tail of the previous move).
 
-The window is time based (message stamps, default 2.0 s), kept as a deque with running sums of
+The window is time based (message stamps, default 2.0 s: at 50 Hz the 100 samples after ``t - 2 s``, so a
+pose logged as 100 samples at 50 Hz with no move recorded between poses fits in one window), kept as a deque with running sums of
 deviations from a reference sample, so each push costs O(1) amortised (the sums are recomputed from
 the deque now and then to stop rounding drift). A still stretch starts at the first sample of the
 first window that passes; the gate emits the window mean once the stretch has lasted ``min_still_s``
@@ -37,6 +38,22 @@ CV that it is not accelerating, so a window of ``gyro_window_s`` (default 1 s; a
 plenty for the CV and axis-spread estimates) is enough. Samples with a gyro reading go to a gate with
 the short window and the gyro check, samples without one to Gietzelt's two-second gate; a robot that
 rests 1-1.5 s between moves (a pick-and-place arm, a legged robot) then yields still samples.
+
+**Learnt rest noise** (``learn=True``). Gietzelt's 3e-3 fits his sensor, not every sensor: an MPU6050
+lying on a desk shows a per-axis spread of 4-5e-3 g (white noise), so with the fixed threshold it is never
+still. Once per window the gate asks whether the window's spread is white noise alone: its per-axis
+spread at most ``REST_LIKE`` times the white-noise level of the same window, estimated from successive
+differences (``rms(diff) / sqrt 2``, which a smooth move barely raises), and both statistics within the
+cap (a shaken sensor's spread can be white too). Such rest-like windows go into a
+bounded history (``LEARN_HISTORY`` windows); the thresholds become ``clip(LEARN_FACTOR x q, configured,
+cap)`` where ``q`` is the history's ``LEARN_QUANTILE`` quantile of the per-axis spread and of the norm CV
+(the shift and outlier bounds scale with the axis threshold). They only ever widen from the configured
+values, and never beyond ``LEARN_CAP`` (1 % of the norm): a slow move has a spread far above its white
+noise and is not rest-like, so it never teaches the gate; the least-moving 2 s window of the shared
+MPU6050 full-sphere move has a norm CV of 0.033 and an axis spread of 0.075, 3x and 7x the cap; and the
+mean of a window with 1 % spread is off the norm by at most ``spread² / 2`` = 5e-5 from a rotation.
+A sensor whose noise is low-pass filtered (successive samples correlated) is never rest-like and keeps
+the configured thresholds. The learning costs one pass over the window per window (O(1) amortised).
 
 Bad input never raises: non-finite or malformed samples, repeated or backwards stamps are dropped and
 counted; a gap longer than the window (or a jump back by more than a window) resets the window.
@@ -59,6 +76,18 @@ _log = logging.getLogger(__name__)
 
 _RESUM_EVERY = 4096
 """Recompute the running sums from the window after this many pushes (rounding drift)."""
+_STAMP_TOL = 1e-6
+"""Stamps this close count as equal at the window's edge, s (rounding of t = i / rate; epoch stamps: 2.4e-7 s)."""
+LEARN_CAP = 1e-2
+"""Largest learnt threshold (norm CV and per-axis spread over the norm): 3.3x Gietzelt's (module docstring)."""
+LEARN_FACTOR = 1.5
+"""Learnt threshold over the rest floor: margin for the window-to-window scatter of a noise estimate."""
+LEARN_QUANTILE = 25.0
+"""Percentile of the rest-like windows' statistics taken as the rest floor."""
+LEARN_HISTORY = 32
+"""Rest-like windows remembered (about a minute at 2 s)."""
+REST_LIKE = 1.5
+"""A window is rest-like when its per-axis spread is at most this times its white-noise level."""
 
 
 def _check(name: str, value: float | None, *, allow_none: bool = False, allow_zero: bool = False) -> float | None:
@@ -89,6 +118,9 @@ class InactivityGate:
         short_fraction: Length of the short window for the mean-shift check, as a fraction of ``window_s``.
         outlier_factor: Bound of a single sample's deviation from the window mean, in units of
             ``axis_threshold * mean(|f|)``.
+        learn: Learn the sensor's rest noise and widen both thresholds to it, up to ``learn_cap``
+            (module docstring, *learnt rest noise*).
+        learn_cap: Largest learnt threshold (a fraction of the norm).
     """
 
     def __init__(
@@ -102,6 +134,8 @@ class InactivityGate:
         max_per_stretch: int | None = None,
         short_fraction: float = 0.125,
         outlier_factor: float = 3.0,
+        learn: bool = False,
+        learn_cap: float = LEARN_CAP,
     ) -> None:
         self.window_s = _check("window_s", window_s)
         self.cv_threshold = _check("cv_threshold", cv_threshold)
@@ -116,6 +150,11 @@ class InactivityGate:
         self.max_per_stretch = max_per_stretch
         self.short_s = self.window_s * _check("short_fraction", short_fraction)  # type: ignore[operator]
         self.outlier_factor = _check("outlier_factor", outlier_factor)
+        self.learn = bool(learn)
+        self.base_thresholds = (self.cv_threshold, self.axis_threshold)
+        """The configured (norm CV, axis spread) thresholds; the learnt ones never go below them."""
+        self.learn_cap = max(_check("learn_cap", learn_cap), *self.base_thresholds)  # type: ignore[type-var]
+        self._rest: deque[tuple[float, float]] = deque(maxlen=LEARN_HISTORY)  # survives reset: the sensor's
         self._pushed = self._nonfinite = self._invalid = self._time = self._resets = 0
         self._emitted = self._stretches = 0
         self.reset()
@@ -139,6 +178,7 @@ class InactivityGate:
         self._last_cv = math.inf
         self._last_axis = math.inf
         self._last_shift = math.inf
+        self._last_learn = -math.inf
         self._resets += 1
 
     @property
@@ -168,6 +208,32 @@ class InactivityGate:
     def window_stats(self) -> tuple[float, float]:
         """The last evaluated (norm CV, per-axis spread / norm); inf before the window is full."""
         return self._last_cv, self._last_axis
+
+    @property
+    def thresholds(self) -> tuple[float, float]:
+        """The (norm CV, axis spread) thresholds in use: the configured ones, or wider learnt ones."""
+        return self.cv_threshold, self.axis_threshold
+
+    @property
+    def learnt(self) -> str:
+        """The learnt thresholds in words ("" while none has widened)."""
+        if (self.cv_threshold, self.axis_threshold) == self.base_thresholds:
+            return ""
+        return (f"learnt from {len(self._rest)} rest windows: CV < {self.cv_threshold:.2g}, axis spread < "
+                f"{self.axis_threshold:.2g} (configured {self.base_thresholds[0]:.2g}, cap {self.learn_cap:.2g})")
+
+    def _learn(self, t: float, mean_n: float) -> None:
+        """Once per window: keep the window's statistics when they are white noise alone; widen the thresholds."""
+        self._last_learn = t
+        a = np.array([w[1:4] for w in self._win])
+        white = float(np.sqrt(np.mean(np.diff(a, axis=0) ** 2, axis=0) / 2.0).max()) / mean_n
+        if not (self._last_axis <= REST_LIKE * white and max(self._last_axis, self._last_cv) <= self.learn_cap):
+            return  # a move (spread beyond its white noise), or too noisy to be still even at the cap
+        self._rest.append((self._last_cv, self._last_axis))
+        cv, axis = np.percentile(np.array(self._rest), LEARN_QUANTILE, axis=0) * LEARN_FACTOR
+        base_cv, base_axis = self.base_thresholds
+        self.cv_threshold = min(max(float(cv), base_cv), self.learn_cap)
+        self.axis_threshold = min(max(float(axis), base_axis), self.learn_cap)
 
     # ------------------------------------------------------------------ window sums
     def _add(self, x: float, y: float, z: float, n: float, sign: float) -> None:
@@ -244,8 +310,8 @@ class InactivityGate:
         win.append((t, x, y, z, n, high))
         self._add(x, y, z, n, 1.0)
         self._n_gyro_high += high
-        t_min = t - self.window_s
-        while win[0][0] < t_min:
+        t_min = t - self.window_s + _STAMP_TOL  # a window of window_s holds window_s x rate samples, not one more
+        while win[0][0] <= t_min:
             _, ox, oy, oz, on, oh = win.popleft()
             self._add(ox, oy, oz, on, -1.0)
             self._n_gyro_high -= oh
@@ -263,7 +329,7 @@ class InactivityGate:
         return self._evaluate(t)
 
     def _evaluate(self, t: float) -> NDArray[np.float64] | None:
-        if t - self._t_first < self.window_s:  # type: ignore[operator]
+        if t - self._t_first < self.window_s - _STAMP_TOL:  # type: ignore[operator]
             return None
         k = len(self._win)
         s = self._s
@@ -276,6 +342,8 @@ class InactivityGate:
         var_ax = max(s[4] / k - (s[0] / k) ** 2, s[5] / k - (s[1] / k) ** 2, s[6] / k - (s[2] / k) ** 2, 0.0)
         self._last_cv = math.sqrt(var_n) / mean_n
         self._last_axis = math.sqrt(var_ax) / mean_n
+        if self.learn and t - self._last_learn >= self.window_s:
+            self._learn(t, mean_n)
         m = len(self._short)
         ss = self._ss
         shift = max(abs(ss[0] / m - s[0] / k), abs(ss[1] / m - s[1] / k), abs(ss[2] / m - s[2] / k)) / mean_n
@@ -326,12 +394,13 @@ class GyroAidedGate:
     """
 
     def __init__(self, window_s: float = 2.0, cv_threshold: float = 3e-3, gyro_threshold: float | None = None,
-                 *, gyro_window_s: float = 1.0, gyro_rest_threshold: float = 0.05) -> None:
+                 *, gyro_window_s: float = 1.0, gyro_rest_threshold: float = 0.05, learn: bool = False) -> None:
         rest = _check("gyro_rest_threshold", gyro_rest_threshold)
         if gyro_threshold is not None:
             rest = min(rest, float(gyro_threshold))  # type: ignore[type-var]
-        self.plain = InactivityGate(window_s=window_s, cv_threshold=cv_threshold, gyro_threshold=gyro_threshold)
-        self.aided = InactivityGate(window_s=gyro_window_s, cv_threshold=cv_threshold, gyro_threshold=rest)
+        self.plain = InactivityGate(window_s=window_s, cv_threshold=cv_threshold, gyro_threshold=gyro_threshold,
+                                    learn=learn)
+        self.aided = InactivityGate(window_s=gyro_window_s, cv_threshold=cv_threshold, gyro_threshold=rest, learn=learn)
         self.gyro_seen = 0
         """Samples that came with a gyro reading (went to the gyro-aided gate)."""
 
@@ -344,6 +413,16 @@ class GyroAidedGate:
     def window_stats(self) -> tuple[float, float]:
         """The last evaluated (norm CV, per-axis spread / norm) of the window in use; inf before it is full."""
         return (self.aided if self.gyro_seen else self.plain).window_stats
+
+    @property
+    def thresholds(self) -> tuple[float, float]:
+        """The (norm CV, axis spread) thresholds in use (learnt or configured) of the window in use."""
+        return (self.aided if self.gyro_seen else self.plain).thresholds
+
+    @property
+    def learnt(self) -> str:
+        """The learnt thresholds of the window in use in words ("" while none has widened)."""
+        return (self.aided if self.gyro_seen else self.plain).learnt
 
     def reset(self) -> None:
         """Empty both windows."""

@@ -203,7 +203,8 @@ def _lm(
             if lam > 1e12:  # no step decreases the cost: a minimum to machine precision
                 return x, r, jt, w, it
     what = "lm" if loss == "linear" else f"lm with loss {loss!r}"
-    msg = f"{what} did not converge in {max_iter} iterations (cost {cost:.4g}); raise max_iter or check the data for outliers"
+    msg = (f"{what} did not converge in {max_iter} iterations (cost {cost:.4g}); raise max_iter "
+           "(replay/calibrate: --set max_iter=...) or check the data for outliers")
     raise ConvergenceError(msg)
 
 

@@ -115,6 +115,9 @@ _BOOL_PARAMS: dict[str, str] = {
     "early_fit": "publish a first MAP fit on rich motion once its predicted heading error is small",
     "gyro_aided": "magnetometer: the Imu angular rate (same frame_id, stamps within 20 ms) joins the partial fit",
 }
+_ACCEL_BOOL: dict[str, str] = {
+    "gate_learn_noise": "inactivity gate: widen the threshold to the sensor's learnt rest noise (at most 1e-2)",
+}
 _INT_PARAMS: dict[str, tuple[int, int, str]] = {
     "min_points": (4, 100000, "fewest buffered samples for a fit"),
     "refit_every": (1, 100000, "buffered samples between validations"),
@@ -386,12 +389,15 @@ class MargCalNode(Node):
         if s == "accel":
             for name, (lo, hi, text) in _ACCEL_GATE.items():
                 self.declare_parameter(f"{s}.{name}", float(getattr(base, name) or 0.0), _fdesc(lo, hi, text))
+            for name, text in _ACCEL_BOOL.items():
+                self.declare_parameter(f"{s}.{name}", bool(getattr(base, name)), ParameterDescriptor(description=text))
         return self._config_from(s, {})
 
     def _config_from(self, s: str, changed: dict[str, Any]) -> PipelineConfig:
         """The PipelineConfig of sensor ``s`` from the declared parameters, with ``changed`` applied."""
         base = PipelineConfig.for_sensor(s, unit=self._units[s])
-        names = [*_FLOAT_PARAMS, *_INT_PARAMS, *_BOOL_PARAMS, *_READ_ONLY_INT, *(_ACCEL_GATE if s == "accel" else ())]
+        accel = [*_ACCEL_GATE, *_ACCEL_BOOL] if s == "accel" else []
+        names = [*_FLOAT_PARAMS, *_INT_PARAMS, *_BOOL_PARAMS, *_READ_ONLY_INT, *accel]
         values: dict[str, Any] = {}
         for name in names:
             key = f"{s}.{name}"

@@ -18,7 +18,8 @@ magnetometer or accelerometer, in pure Python (no rclpy):
    any magnitude) is dropped as ``spike``; the others go on, a far step one to three samples late.
 2. *Gate.* Accelerometer samples go through ``gate.InactivityGate`` (Gietzelt et al. 2013, §2.4:
    coefficient of variation of the norm over a 2 s window below 3e-3; 1 s with a gyro reading below
-   ``gate_gyro_rest_threshold``, ``gate.GyroAidedGate``) and only its averaged still samples go on;
+   ``gate_gyro_rest_threshold``, ``gate.GyroAidedGate``; with ``gate_learn_noise`` both thresholds widen to
+   the sensor's learnt rest noise, at most 1e-2) and only its averaged still samples go on;
    magnetometer samples go straight on (and into the partial calibration's time series).
 3. *Buffer.* ``coverage.DirectionBuffer`` keeps at most K samples per direction bin (newest
    replaces oldest) and the coverage indicators A–D of Olivares et al. 2013 (§3.1).
@@ -133,7 +134,7 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         if self.sensor == "accel":
             self._gate = GyroAidedGate(window_s=cfg.gate_window_s, cv_threshold=cfg.gate_cv_threshold,
                                        gyro_threshold=cfg.gate_gyro_threshold, gyro_window_s=cfg.gate_gyro_window_s,
-                                       gyro_rest_threshold=cfg.gate_gyro_rest_threshold)
+                                       gyro_rest_threshold=cfg.gate_gyro_rest_threshold, learn=cfg.gate_learn_noise)
         self._recent_t: deque[float] = deque(maxlen=cfg.recent_samples)
         self._recent_v: deque[tuple[float, float, float]] = deque(maxlen=cfg.recent_samples)
         self._recent_r: deque[float] = deque(maxlen=cfg.recent_samples)
@@ -155,6 +156,7 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         self._recentred: Calibration | None = None  # the current calibration when a re-centring (change.py) made it
         self._back_since: float | None = None  # after a change: since when the old calibration explains the samples
         self._pre_change: tuple[Any, Any] | None = None  # the buffer's times and points before the change
+        self._fit_times, self._fit_points = np.zeros(0), np.zeros((0, 3))  # the buffer when the calibration was installed
         self._predicted: float | None = None
         self._indicators: Any = None
         self._last_rejection = ""
@@ -172,7 +174,7 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         config = replace(config.checked(), sensor=self.sensor)
         rebuild = any(getattr(config, k) != getattr(self.config, k) for k in
                       ("n_bins", "per_bin", "recent_samples", "gate_window_s", "gate_cv_threshold", "gate_gyro_threshold",
-                       "gate_gyro_window_s", "gate_gyro_rest_threshold", "gyro_aided", "gyro_samples"))
+                       "gate_gyro_window_s", "gate_gyro_rest_threshold", "gate_learn_noise", "gyro_aided", "gyro_samples"))
         self.config = config
         self._intake.config = config
         if rebuild:
@@ -223,6 +225,7 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         if len(self._recent_v):
             r = np.abs(cal.norm_error(np.array(self._recent_v))) / cal.norm
             self._recent_r = deque(r.tolist(), maxlen=self.config.recent_samples)
+        self._fit_times, self._fit_points = self._buffer.times(), self._buffer.points()  # what it was fitted on (change)
         old = self._buffer.center  # a move within CENTER_MOVE_TOLERANCE keeps the bins (no re-binning)
         near = float(np.linalg.norm(cal.offset - old)) <= self.CENTER_MOVE_TOLERANCE * cal.raw_radius
         self._buffer.set_center(old if near else cal.offset, cal.raw_radius)
@@ -396,6 +399,16 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         return (f"; the sensor has not turned: the last {len(pts)} samples stay within {pct(spread)} of their mean "
                 "(static: they fix the field norm only); turn it through all directions")
 
+    def _gate_figures(self) -> str:
+        """" (last window CV .. vs .., axis spread .. vs ..; learnt ...)": the gate's last window and its thresholds."""
+        cv, axis = self._gate.window_stats
+        if not math.isfinite(cv):
+            return ""
+        cv_max, axis_max = self._gate.thresholds
+        learnt = self._gate.learnt
+        return (f" (last window CV {cv:.3g} vs {cv_max:.3g}, axis spread {axis:.3g} vs {axis_max:.3g}"
+                f"{'; ' + learnt if learnt else ''})")
+
     def status(self, now: float | None = None) -> Status:
         """The status at message time ``now`` (default: the last sample's time)."""
         t = self._t if now is None else float(now)
@@ -421,18 +434,16 @@ class SensorCalibrator(ChangeDetection, Evaluation):
             if self._changed:
                 msg = f"collecting after a sensor change (residual {pct(res)}): {self._last_reason}"
             elif self._predicted is not None:
-                msg = (f"collecting: {pct(self.coverage)} coverage, "
-                       f"predicted error {pct(self._predicted)} > {pct(self.threshold)}")
+                shown = pct(self._predicted) if self._predicted <= 1.0 else "over 100 % (not determined)"
+                msg = f"collecting: {pct(self.coverage)} coverage, predicted error {shown} > {pct(self.threshold)}"
                 msg += self._static_note()
             elif self.passed == 0 and self.seen:
                 msg = f"collecting: every sample dropped so far: {self._intake.drop_summary()}"
             elif self.kept == 0 and self._gate is not None:
-                cv, axis = self._gate.window_stats
-                last = f" (last window CV {cv:.2g} vs {self.config.gate_cv_threshold:g}, axis spread {axis:.2g})" \
-                    if math.isfinite(cv) else ""
                 msg = (f"collecting: no still sample from the inactivity gate yet: {self.passed} samples reached it; "
-                       f"0 of {self.passed} samples still for >= {self._gate.window_s:g} s{last}: hold the sensor still "
-                       f"in a few poses, or raise {self.sensor}.gate_cv_threshold for a noisy sensor")
+                       f"0 of {self.passed} samples still for >= {self._gate.window_s:g} s{self._gate_figures()}: hold "
+                       f"the sensor still in a few poses, or raise gate_cv_threshold for a noisy sensor "
+                       f"(replay/calibrate: --set gate_cv_threshold=...; node: {self.sensor}.gate_cv_threshold)")
             else:
                 msg = f"collecting: {self._last_reason}"
             dropped = sum(self.dropped.values())

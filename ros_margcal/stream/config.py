@@ -11,8 +11,10 @@ offset limit, diagonal/off-diagonal limits, field strength check), restated for 
   phone or a logger beside a battery reads more: ArduPilot accepts 1 800 mG (180 µT), real recordings
   show 231 µT in a 39 µT field; the magnetometer default is therefore 5 field norms or 1 mT (20 Earth
   fields, within the ±4.9 mT range of phone magnetometers), and 20 field norms in a unit without a
-  known scale (counts). An accelerometer bias beyond ~0.35 g is a broken sensor. The message gives
-  the fitted offset so a user can judge;
+  known scale (counts). An accelerometer bias beyond ~0.35 g is a broken sensor, but in counts the
+  offset is the ADC's (an unsigned ADC's mid-scale: up to 16 g at +-16 g): 20 gravity norms there
+  (``COUNTS_ACCEL_OFFSET_RATIO``). The message gives the fitted offset, in the sensor's words (hard
+  iron, bias), so a user can judge;
 - gains: the singular values of ``W`` scaled so that a sphere gives 1 (the axis ratios of the raw
   ellipsoid) within ``[gain_min, gain_max]``;
 - field norm: the raw radius ``norm / |det W|^(1/3)`` within ``[norm_min, norm_max]`` (20–70 µT
@@ -43,7 +45,7 @@ from .units import ACCEL_UNITS, GRAVITY, LEARN_SAMPLES, MAG_UNITS, unit_scale
 
 __all__ = ["ACCEL_UNITS", "FIELD_SPECS", "GRAVITY", "GYRO_PAIR_S", "MAG_UNITS", "STATIC_SPREAD", "FieldSpec",
            "PipelineConfig", "guard_rails",
-           "plausibility", "relative_spread", "rms_relative"]
+           "plausibility", "raise_hint", "relative_spread", "rms_relative"]
 
 EARTH_FIELD_RANGE_T = (20e-6, 70e-6)
 """Plausible geomagnetic field strength, tesla."""
@@ -59,6 +61,9 @@ def relative_spread(points: NDArray[np.float64]) -> float:
     """RMS distance of ``points`` (n, 3) from their mean over their median norm (compare ``STATIC_SPREAD``)."""
     scale = float(np.median(np.linalg.norm(points, axis=1))) or 1.0
     return float(np.sqrt(np.mean(np.sum((points - points.mean(axis=0)) ** 2, axis=1)))) / scale
+COUNTS_ACCEL_OFFSET_RATIO = 20.0
+"""Accelerometer offset limit in counts, gravity norms: an unsigned 16-bit ADC reads mid-scale 32768 at 0 g, which is
+2 g at +-2 g (16384 counts/g) and 16 g at +-16 g (2048 counts/g); 20 covers every common range."""
 MAX_OFFSET_T = 1e-3
 """Default absolute magnetometer offset limit, tesla (20 Earth fields; ArduPilot: 1 800 mG = 180 µT)."""
 
@@ -120,6 +125,7 @@ class PipelineConfig:
     gate_gyro_threshold: float | None = None
     gate_gyro_window_s: float = 1.0  # with a gyro reading on every sample: the still window (Gietzelt's 2 s without)
     gate_gyro_rest_threshold: float = 0.05  # rad/s: |omega| below this on every sample of the gyro-aided window
+    gate_learn_noise: bool = True  # widen the gate's thresholds to the sensor's learnt rest noise (coverage/gate.py)
     # partial calibration (stream/observable.py)
     partial_fit: bool = True  # magnetometer: fit what the motion makes observable when the full validator refuses
     max_heading_p95_deg: float = 2.5  # publish a partial fit when its predicted heading p95 at the tilt seen is within
@@ -148,8 +154,8 @@ class PipelineConfig:
 
         In a unit without a known scale (``units.unit_scale`` is None: counts) the field-strength check
         is off, the magnitude limits are learnt from the first ``units.LEARN_SAMPLES`` samples (unless
-        ``min_magnitude`` or ``max_magnitude`` is given) and the magnetometer's offset limit is 20
-        field norms.
+        ``min_magnitude`` or ``max_magnitude`` is given) and the offset limit is 20 field norms (an
+        unsigned ADC's mid-scale: ``COUNTS_ACCEL_OFFSET_RATIO``).
         """
         if unit is not None and not isinstance(unit, str):
             raise ConfigError(f"unit must be a string, got {unit!r}")
@@ -179,6 +185,8 @@ class PipelineConfig:
                        change_min_duration_s=0.0, outlier_threshold=0.2, max_residual=0.03)
         if unknown:
             base = replace(base, **unknown)
+            if sensor == "accel":  # an unsigned ADC sits at mid-scale: its full-scale range in g, up to 16 (module doc)
+                base = replace(base, max_offset_ratio=COUNTS_ACCEL_OFFSET_RATIO)
         bad = sorted(set(overrides) - {f.name for f in fields(cls)})
         if bad:
             raise ConfigError(f"unknown options {bad}")
@@ -320,6 +328,7 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "gate_gyro_threshold": _ratio(100.0, none_ok=True),
     "gate_gyro_window_s": _real(1e-3, 600.0),
     "gate_gyro_rest_threshold": _ratio(100.0),
+    "gate_learn_noise": FieldSpec(bool),
     "partial_fit": FieldSpec(bool),
     "max_heading_p95_deg": _real(0.0, 180.0, open_lo=True),
     "partial_period_s": _real(0.0, 3600.0),
@@ -385,17 +394,31 @@ def plausibility(cal: Calibration, cfg: PipelineConfig) -> str:
         rel = {k: v / (radius if k.startswith("b_") else cal.norm if k == "norm" else gain) for k, v in std.items()}
         worst = max(rel, key=lambda k: rel[k])
         if rel[worst] > cfg.max_parameter_std:
-            return (f"parameter uncertainty too large: std of {worst} is {100 * rel[worst]:.2g} % > "
-                    f"{100 * cfg.max_parameter_std:.2g} % (the directions do not determine the model)")
+            return (f"parameter uncertainty too large: std of {worst} is {100 * rel[worst]:.3g} % > "
+                    f"{100 * cfg.max_parameter_std:.3g} % (the directions do not determine the model)")
     off = float(np.linalg.norm(cal.offset))
     limit = max(cfg.max_offset_ratio * radius, cfg.max_offset or 0.0)
     if off > limit:
-        vec = ", ".join(f"{x:.4g}" for x in cal.offset)
-        absolute = f" or {cfg.max_offset:.4g} {cfg.unit} (max_offset)" if cfg.max_offset is not None else ""
-        return (f"offset {off:.4g} {cfg.unit} (fitted [{vec}], {off / radius:.3g} field norms) > limit "
-                f"{limit:.4g} {cfg.unit}: the larger of {cfg.max_offset_ratio:g} x field norm "
-                f"(max_offset_ratio){absolute}; raise the limit if the sensor really carries this hard iron")
+        return _offset_reason(cal, cfg, off, radius, limit)
     gains = np.linalg.svd(cal.matrix, compute_uv=False) * radius / cal.norm
     if gains.min() < cfg.gain_min or gains.max() > cfg.gain_max:
         return f"axis gains {np.round(gains, 3).tolist()} outside [{cfg.gain_min:g}, {cfg.gain_max:g}]"
     return ""
+
+
+def raise_hint(sensor: str, name: str) -> str:
+    """"raise NAME (replay/calibrate: --set NAME=...; node: SENSOR.NAME)": how to change the option a message names."""
+    if name not in FIELD_SPECS:
+        raise ConfigError(f"raise_hint: no option {name!r}")
+    return f"raise {name} (replay/calibrate: --set {name}=...; node: {sensor}.{name})"
+
+
+def _offset_reason(cal: Calibration, cfg: PipelineConfig, off: float, radius: float, limit: float) -> str:
+    """Why the offset is refused, in the sensor's words (a magnetometer's hard iron, an accelerometer's bias)."""
+    vec = ", ".join(f"{x:.4g}" for x in cal.offset)
+    norms = "field norms" if cfg.sensor == "mag" else "gravity norms"
+    absolute = f" or {cfg.max_offset:.4g} {cfg.unit} (max_offset)" if cfg.max_offset is not None else ""
+    what = "the sensor really carries this hard iron" if cfg.sensor == "mag" else "the accelerometer really has this bias"
+    return (f"offset {off:.4g} {cfg.unit} (fitted [{vec}], {off / radius:.4g} {norms}) > limit {limit:.4g} {cfg.unit}: "
+            f"the larger of {cfg.max_offset_ratio:g} x {norms[:-1]} (max_offset_ratio){absolute}; if {what}, "
+            f"{raise_hint(cfg.sensor, 'max_offset_ratio')}")

@@ -228,7 +228,8 @@ class Evaluation(PartialCalibration):
         self._predicted = pred
         thr = self.threshold
         if not pred <= thr:
-            self._last_reason = (f"{pct(self.coverage)} coverage, predicted error {pct(pred)} > {pct(thr)}: "
+            shown = pct(pred) if pred <= 1.0 else "over 100 % (not determined)"  # the validator extrapolates
+            self._last_reason = (f"{pct(self.coverage)} coverage, predicted error {shown} > {pct(thr)}: "
                                  "turn the sensor through the directions not yet covered")
             events = [Event(EventKind.REJECTED, t, self.sensor, f"not fitted: {self._last_reason}")] if force else []
             if self._cal is None or self._changed:

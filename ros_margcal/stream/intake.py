@@ -8,8 +8,9 @@ objects (the node and the replay hand over what a message or a file held):
   complex or string arrays, objects whose ``len`` or ``float`` raises) is ``wrong_size``; a stamp
   that is not a real number, or beyond ``MAX_STAMP_S``, is ``bad_stamp``.
 - NaN or ±Inf, also a Python int beyond the float range, is ``nonfinite``; a norm at most
-  ``min_magnitude`` is ``zero``, above ``max_magnitude`` ``magnitude`` (the last offending norm is kept
-  in ``last_magnitude`` for the status). With ``learn_magnitude_samples`` > 0 (a unit without a known
+  ``min_magnitude`` is ``zero`` (an all-zero row, a driver's placeholder, also counted in ``zero_rows`` and
+  called so), above ``max_magnitude`` ``magnitude`` (the last non-zero offending norm of each is kept in
+  ``last_norms`` for the status). With ``learn_magnitude_samples`` > 0 (a unit without a known
   scale, such as counts) the first that many samples pass with any non-zero norm up to ``max_magnitude`` and their
   median norm ``m`` sets the limits to ``[units.LEARN_LOW m, units.LEARN_HIGH m]`` (``learnt`` says so). Limits
   learnt from a bad start are relearnt (``units.RELEARN_SHARE`` of a window outside them; ``relearnt_now``
@@ -138,8 +139,10 @@ class Intake:
         self._last_taken_t = -math.inf
         self._off_last: float | None = None
         self._off_count = 0
-        self.last_magnitude: float | None = None
-        """The norm of the last sample dropped as ``zero`` or ``magnitude``."""
+        self.last_norms: dict[str, float] = {}
+        """The norm of the last sample dropped as ``zero`` and of the last dropped as ``magnitude``."""
+        self.zero_rows = 0
+        """Samples dropped as ``zero`` that were exactly (0, 0, 0): a driver's placeholder, not a reading."""
         self._learning: list[float] = []
         self._learnt: tuple[float, float, float] | None = None  # (median norm, low, high)
         self._window_n = max(1, RELEARN_FACTOR * config.learn_magnitude_samples)
@@ -218,8 +221,10 @@ class Intake:
         learning = self.learning
         lo, hi = (0.0, cfg.max_magnitude) if learning else self.limits
         if not lo < mag <= hi:
-            self.last_magnitude = mag
+            if mag:  # a zero row is counted as one (``zero_rows``), never quoted as a norm
+                self.last_norms["zero" if mag <= lo else "magnitude"] = mag
             if self._learnt is None or not self._watch(v if mag else None, ts):
+                self.zero_rows += mag == 0.0
                 return "zero" if mag <= lo else "magnitude"
         elif self._learnt is not None:
             self._watch(None, ts)
@@ -288,14 +293,18 @@ class Intake:
                     else f"the limits are relearnt once {RELEARN_SHARE:.0%} of the last {self._window_n} samples fall "
                          "outside them")
         else:
-            where = f"{cfg.sensor}.{bound}_magnitude"
+            where = f"{bound}_magnitude: replay/calibrate --set {cfg.sensor}.{bound}_magnitude=..."
             hint = f"set the raw unit: --unit in margcal replay and calibrate, {cfg.sensor}.unit in the node"
-        if worst == "magnitude" and self.last_magnitude is not None:
-            return (f"{head}: {n} x |v| above the limit, last |v| = {self.last_magnitude:.4g} > {hi:.4g} {cfg.unit} "
+        last = self.last_norms.get(worst)
+        if worst == "magnitude" and last is not None:
+            return (f"{head}: {n} x |v| above the limit, last |v| = {last:.4g} > {hi:.4g} {cfg.unit} "
                     f"({where}); {hint}")
-        if worst == "zero" and self.last_magnitude is not None:
-            return (f"{head}: {n} x |v| at or below the limit, last |v| = {self.last_magnitude:.4g} <= {lo:.4g} "
-                    f"{cfg.unit} ({where}); {hint}")
+        if worst == "zero" and self.zero_rows == n:
+            return f"{head}: {n} all-zero rows (0, 0, 0): no reading, dropped"
+        if worst == "zero" and last is not None:
+            zeros = f", {self.zero_rows} of them all-zero rows" if self.zero_rows else ""
+            return (f"{head}: {n} x |v| at or below the limit{zeros}, last non-zero |v| <= {lo:.4g} {cfg.unit} "
+                    f"({where}); {hint}")
         return f"{head}: {n} x {worst}"
 
     def _stamp(self, t: float) -> str:
