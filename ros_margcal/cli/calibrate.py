@@ -22,6 +22,13 @@ stamps before each restart are moved back to run on into the last clock, for the
 search and the calibration's stamp (``recordings.continue_clock``). ``--norm`` must be within
 ``NORM_RATIO`` of the readings' scale (the output unit may differ from the raw one, but not by
 10^300), ``--f-scale`` of ``--norm``.
+
+``--unit`` is the recording's raw unit, checked against the readings or inferred from them
+(``raw_units``); all-zero rows are dropped and counted. Whatever is fitted passes the stream's guard
+rails before it is written (``calibrate_guard``): otherwise nothing is written and the exit code is
+``EXIT_REFUSED`` (4); ``--force`` writes it with the reason in its ``method``. ``--set KEY=VALUE`` sets the
+options the guard rails, the gate and the fit use (``CALIBRATE_OPTIONS``; ``set_option``). Exit codes:
+0 written, 2 bad input, 3 nothing to fit (static, too few samples), 4 refused by the guard rails.
 """
 
 from __future__ import annotations
@@ -42,9 +49,13 @@ from ..model.errors import ConfigError, ConvergenceError, DegenerateDataError, R
 from ..model.fitting import LOSSES, METHODS, SUPPORTED, fit
 from ..recordings.read import read_recording
 from ..recordings.recording import Recording, continue_clock
+from ..stream.config import PipelineConfig
+from .calibrate_guard import EXIT_REFUSED, forced, norm_source, refusal
 from .fit_rescue import MIN_SCALE, Rescue, check, config_for, heading_text, reading_scale, rescue, residual_note, screen
+from .raw_units import prepare
+from .set_option import SET_HELP, parse_sets, sensor_options
 
-__all__ = ["NORM_RATIO", "register", "run", "still_samples"]
+__all__ = ["CALIBRATE_OPTIONS", "NORM_RATIO", "register", "run", "still_samples"]
 
 _DEFAULT_MODEL = {"sphere": "eye", "lin_auto": "diag"}
 
@@ -53,6 +64,12 @@ NORM_RATIO = 1e12
 must lie within [1 / NORM_RATIO, NORM_RATIO]:
 every unit conversion (tesla to counts, m/s² to mg) is well inside, and beyond it the fitted matrix's
 products over- or underflow."""
+
+
+CALIBRATE_OPTIONS = frozenset({"max_iter", "gate_window_s", "gate_cv_threshold", "max_residual", "max_offset_ratio",
+                               "max_offset", "gain_min", "gain_max", "norm_min", "norm_max", "max_parameter_std",
+                               "max_heading_p95_deg"})
+"""The ``--set`` options calibrate uses: the fit's iterations, the accelerometer's gate, the guard rails."""
 
 
 def register(subparsers: Any) -> None:
@@ -93,7 +110,14 @@ def register(subparsers: Any) -> None:
         help="which samples to fit: all, or still ones (accelerometer inactivity gate, 2 s, CV 3e-3); "
         "auto = still for accel, all for mag",
     )
-    p.add_argument("--unit", default=None, help="unit of the calibrated output (default: the recording's unit)")
+    p.add_argument("--unit", default=None,
+                   help="raw unit of the recording: T, mT, uT, nT, gauss, mG (mag), m/s^2, g, mg (accel), or counts "
+                   "(any other name: not checked); refused when the readings are no Earth field or gravity in it. "
+                   "Default: a bag's REP-145 unit (T, m/s^2), a CSV's inferred from the readings' size (said)")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE", help=SET_HELP)
+    p.add_argument("--force", action="store_true",
+                   help="write a calibration the guard rails refuse (offset, gains, field norm, uncertainty, predicted "
+                   "heading error); its method records 'forced' and why")
     p.add_argument("-o", "--output", type=Path, default=None, help="write the calibration as ros__parameters YAML")
     p.add_argument("--json", type=Path, default=None, help="write the result (parameters, std, stats) as JSON")
     p.add_argument("--keep-spikes", action="store_true",
@@ -104,18 +128,30 @@ def register(subparsers: Any) -> None:
     p.set_defaults(func=run)  # fmt: skip
 
 
-def still_samples(rec: Any) -> np.ndarray:
-    """Averaged still samples of an accelerometer stream through the inactivity gate (Gietzelt Sec. 2.4)."""
-
-    gate = InactivityGate()
-    out = []
+def still_samples(rec: Any, cfg: PipelineConfig | None = None) -> np.ndarray:
+    """Averaged still samples of an accelerometer stream through the inactivity gate (Gietzelt Sec. 2.4), with the
+    gate options of ``cfg`` (the defaults without). With ``gate_learn_noise`` (the default) a first pass learns the
+    sensor's rest noise over the whole recording and a second gates with those thresholds, so the still periods
+    before the learning settled count too."""
+    window, cv = (2.0, 3e-3) if cfg is None else (cfg.gate_window_s, cfg.gate_cv_threshold)
     gyro = rec.gyro
+    axis = cv
+    learnt = ""
+    if cfg is None or cfg.gate_learn_noise:
+        probe = InactivityGate(window_s=window, cv_threshold=cv, learn=True)
+        for i in range(len(rec.t)):
+            probe.push(rec.t[i], rec.raw[i], None if gyro is None else gyro[i])
+        (cv, axis), learnt = probe.thresholds, probe.learnt
+    gate = InactivityGate(window_s=window, cv_threshold=cv, axis_threshold=axis)
+    out = []
     for i in range(len(rec.t)):
         avg = gate.push(rec.t[i], rec.raw[i], None if gyro is None else gyro[i])
         if avg is not None:
             out.append(avg)
     if not out:
-        msg = "no still periods found in the recording (inactivity gate: 2 s window, CV 3e-3); use --samples all"
+        msg = (f"no still periods found in the recording (inactivity gate: {window:g} s window, CV {cv:.2g}, axis "
+               f"spread {axis:.2g}{'; ' + learnt if learnt else ''}); use --samples all, or --set "
+               "accel.gate_cv_threshold=... above the sensor's rest noise")
         raise RecordingError(msg)
     return np.asarray(out, dtype=np.float64)
 
@@ -130,13 +166,13 @@ def result_dict(cal: Calibration, source: str, n_read: int) -> dict[str, Any]:
     return d
 
 
-def _print(cal: Calibration, source: str, n_read: int) -> None:
+def _print(cal: Calibration, source: str, n_read: int, fixed: str = "given by --norm") -> None:
+    """The calibration with its uncertainties; ``fixed`` says where a norm without one comes from."""
     std = cal.parameter_std()
     unit = f" {cal.unit}" if cal.unit else ""
     print(f"{cal.sensor or 'sensor'} calibration of {source}: model {cal.model}, method {cal.method}, "
           f"{cal.stats.n_points if cal.stats else '?'} of {n_read} samples")  # fmt: skip
-    fixed = " (the prior's, fixed)" if cal.method == "map" else " (given)"
-    print(f"  norm     {cal.norm:.6g}{unit}" + (f" +- {std['norm']:.2g}" if "norm" in std else fixed))
+    print(f"  norm     {cal.norm:.6g}{unit}" + norm_source(std, fixed))
     for i, axis in enumerate("xyz"):
         s = std.get(f"b_{axis}")
         print(f"  offset {axis} {cal.offset[i]:>13.6g}" + (f" +- {s:.2g}" if s is not None else ""))
@@ -189,36 +225,59 @@ def _check_scales(norm: float | None, f_scale: float | None, points: np.ndarray)
             raise ConfigError(msg)
 
 
-def run(args: argparse.Namespace) -> int:
-    """Read the recording, fit, print, write YAML/JSON; returns the exit code."""
-
-    rec = read_recording(args.input, sensor=args.sensor, topic=args.topic, order="file")
-    n_read, last_stamp = len(rec.t), float(rec.t[-1]) if len(rec.t) else None
-    rec = _in_file_order(rec)
-    sensor = args.sensor or rec.sensor or ""
-    use_still = args.samples == "still" or (args.samples == "auto" and sensor == "accel")
+def _points(rec: Recording, args: argparse.Namespace, cfg: PipelineConfig) -> tuple[np.ndarray, np.ndarray | None,
+                                                                                dict[str, int]]:
+    """The readings to fit (still samples of an accelerometer), their times (None for still samples) and the
+    readings dropped per reason."""
+    use_still = args.samples == "still" or (args.samples == "auto" and cfg.sensor == "accel")
     absurd = screen(rec.raw, spikes=False)  # before the gate: its windows would average them in
     if absurd.absurd:
         print(absurd.text(), file=sys.stderr)
         rec = rec.slice(absurd.keep)
-    points = still_samples(rec) if use_still else np.asarray(rec.raw, dtype=np.float64)
+    points = still_samples(rec, cfg) if use_still else np.asarray(rec.raw, dtype=np.float64)
     if use_still:
         print(f"inactivity gate: {len(points)} still samples from {len(rec.t)} readings", file=sys.stderr)
     times = None if use_still or rec.t is None else np.asarray(rec.t, dtype=np.float64)
-    unit = args.unit if args.unit is not None else (rec.unit or "")
     far = screen(points, spikes=not args.keep_spikes)
     if far.spikes:
-        print(far.text(unit), file=sys.stderr)
+        print(far.text(cfg.unit), file=sys.stderr)
         points = points[far.keep]
         times = None if times is None else times[far.keep]
+    return points, times, {**absurd.dropped, **far.dropped}
+
+
+def _prior_norm(args: argparse.Namespace, cfg: PipelineConfig) -> tuple[float | None, str]:
+    """The norm a fit holds fixed and where it comes from: --norm, gravity in a known unit, else the prior fit's own."""
+    if args.norm is not None:
+        return args.norm, "given by --norm"
+    if cfg.sensor == "accel" and cfg.reference_norm is not None:
+        return cfg.reference_norm, f"gravity in {cfg.unit}"
+    return None, "the readings' sphere radius"
+
+
+def run(args: argparse.Namespace) -> int:
+    """Read the recording, fit, check against the guard rails, print, write YAML/JSON; returns the exit code."""
+    sets = parse_sets(args.set)
+    rec = read_recording(args.input, sensor=args.sensor, topic=args.topic, order="file")
+    n_read, last_stamp = len(rec.t), float(rec.t[-1]) if len(rec.t) else None
+    rec, sensor, unit = prepare(_in_file_order(rec), args.sensor, args.unit, str(args.input))
+    overrides = sensor_options(sets, sensor)
+    idle = sorted(set(overrides) - CALIBRATE_OPTIONS)
+    if idle:
+        print(f"note: --set {', '.join(idle)}: streaming option(s) that calibrate does not use (replay does)",
+              file=sys.stderr)
+    cfg = config_for(sensor, unit, **overrides)
+    points, times, dropped = _points(rec, args, cfg)
+    if len(rec) < n_read:
+        dropped = {"zero": n_read - len(rec), **dropped}
     _check_scales(args.norm, args.f_scale, points)
-    dropped = {**absurd.dropped, **far.dropped}
     extra: dict[str, Any] = {"dropped": dropped} if dropped else {}
     model = args.model or _DEFAULT_MODEL.get(args.method, "sym")
-    cfg = config_for(sensor, unit) if sensor in ("mag", "accel") else None
+    prior_norm, fixed = _prior_norm(args, cfg)
+    iters = {"max_iter": overrides["max_iter"]} if "max_iter" in overrides else {}
     try:
         cal = fit(points, model=model, method=args.method, norm=args.norm, loss=args.loss, f_scale=args.f_scale,
-                  sensor=sensor, unit=unit)  # fmt: skip
+                  sensor=sensor, unit=unit, **iters)  # fmt: skip
         failure = check(cal, cfg)
         high = residual_note(cal, cfg)
     except (ConvergenceError, DegenerateDataError) as exc:
@@ -227,18 +286,36 @@ def run(args: argparse.Namespace) -> int:
         cal, failure, high = None, str(exc), ""
     if (failure or high) and not args.no_rescue:
         res = rescue(times, points, failure=failure or high, model=model if model in SUPPORTED["lm"] else "sym",
-                     norm=args.norm, loss=args.loss, sensor=sensor, unit=unit, cfg=cfg, change_only=not failure)
+                     norm=prior_norm, loss=args.loss, sensor=sensor, unit=unit, cfg=cfg, change_only=not failure)
         if res is not None:
-            return _report_rescue(res, args, sensor, n_read, extra)
-    for note in (failure, high):
-        if note:
-            print(f"warning: {note}" + ("" if failure else " (no offset change located: motion or disturbances?)"),
-                  file=sys.stderr)
-    assert cal is not None
+            return _report_rescue(res, args, cfg, n_read, extra, fixed)
+    if high:
+        print(f"warning: {high} (no offset change located: motion or disturbances?)", file=sys.stderr)
+    if cal is None:
+        raise ConvergenceError(failure)
     if last_stamp is not None:
         cal = cal.replace(stamp=last_stamp)
-    _print(cal, str(args.input), n_read)
-    _write(args, {sensor or "sensor": cal}, [{**result_dict(cal, str(args.input), n_read), **extra}])
+    _print(cal, str(args.input), n_read, fixed)
+    return _guarded_write(args, cfg, {sensor: cal}, [{**result_dict(cal, str(args.input), n_read), **extra}])
+
+
+def _guarded_write(args: argparse.Namespace, cfg: PipelineConfig, cals: dict[str, Calibration],
+                   results: list[dict[str, Any]]) -> int:
+    """Write ``cals`` unless the guard rails refuse one (``EXIT_REFUSED``, nothing written); --force writes them
+    marked as forced."""
+    refused = {k: why for k, c in cals.items() if (why := refusal(c, cfg))}
+    if refused and not args.force:
+        for k, why in refused.items():
+            print(f"margcal calibrate: {k}: refused by the guard rails: {why}", file=sys.stderr)
+        print("margcal calibrate: nothing written (the online calibrator would not publish this); --force writes it "
+              "anyway, marked as forced", file=sys.stderr)
+        return EXIT_REFUSED
+    for (k, why), d in zip(((k, refused.get(k, "")) for k in cals), results, strict=True):
+        if why:
+            print(f"warning: {k}: written past the guard rails (--force): {why}", file=sys.stderr)
+            cals[k] = forced(cals[k], why)
+            d["forced"], d["method"] = why, cals[k].method
+    _write(args, cals, results)
     return 0
 
 
@@ -253,27 +330,29 @@ def _write(args: argparse.Namespace, cals: dict[str, Calibration], results: list
         print(f"wrote {args.json}")
 
 
-def _report_rescue(res: Rescue, args: argparse.Namespace, sensor: str, n_read: int, extra: dict[str, Any]) -> int:
-    """Print the diagnosis and the calibrations it fitted, write them; 3 when nothing could be fitted."""
+def _report_rescue(res: Rescue, args: argparse.Namespace, cfg: PipelineConfig, n_read: int, extra: dict[str, Any],
+                   fixed: str) -> int:
+    """Print the diagnosis and the calibrations it fitted, write them if the guard rails pass them; 3 when nothing
+    could be fitted."""
     for line in res.lines:
         print(line)
     if res.refused:
         return 3
     cals: dict[str, Calibration] = {}
     results = []
-    key = sensor or "sensor"
+    key = cfg.sensor
     last = max((k for k, p in enumerate(res.parts) if p.calibration is not None), default=-1)
     for k, part in enumerate(res.parts):
         cal = part.calibration
         print(f"-- {part.label}: {part.n_points} samples" + (f" ({part.note})" if part.note else ""))
         if cal is None:
             continue
-        _print(cal, str(args.input), n_read)
+        _print(cal, str(args.input), n_read, fixed)
         pf = part.prior_fit
         if pf is not None:
             print(f"  updated by the data: {', '.join(pf.updated) or 'none'}")
             print(f"  from the prior:      {', '.join(pf.from_prior) or 'none'}")
-        if sensor == "mag":
+        if key == "mag":
             text = heading_text(cal)
             if text:
                 print(f"  {text}")
@@ -285,5 +364,4 @@ def _report_rescue(res: Rescue, args: argparse.Namespace, sensor: str, n_read: i
         if pf is not None:
             d["updated"], d["from_prior"] = list(pf.updated), list(pf.from_prior)
         results.append(d)
-    _write(args, cals, results)
-    return 0
+    return _guarded_write(args, cfg, cals, results)

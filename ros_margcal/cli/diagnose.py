@@ -22,6 +22,7 @@ from ..diagnosis.twin import FIT_ERRORS
 from ..model.errors import MargCalError
 from ..recordings.read import read_recording
 from ..validation.shipped import load_default_validator
+from .raw_units import prepare
 
 __all__ = ["register", "run", "run_benchmark"]
 
@@ -37,6 +38,10 @@ def register(subparsers: Any) -> None:
     p.add_argument("input", type=Path, help="recording: .csv (t,x,y,z[,temp]), .mcap, .db3 or a rosbag2 directory")
     p.add_argument("--sensor", choices=("mag", "accel"), default=None, help="default: guessed from the file")
     p.add_argument("--topic", default=None, help="bag topic to read when several match")
+    p.add_argument("--unit", default=None,
+                   help="raw unit of the recording: T, mT, uT, nT, gauss, mG (mag), m/s^2, g, mg (accel), or counts "
+                   "(any other name: not checked); refused when the readings are no Earth field or gravity in it. "
+                   "Default: a bag's REP-145 unit (T, m/s^2), a CSV's inferred from the readings' size (said)")
     p.add_argument("--norm", type=float, default=None, help="reference norm of the calibrated vector (default: estimated)")
     p.add_argument("--out", type=Path, default=Path("diagnosis"), help="output directory (default ./diagnosis)")
     p.add_argument("--rest-noise", type=float, default=None,
@@ -77,8 +82,7 @@ def run(args: argparse.Namespace) -> int:
     # every option up front (exit 2, one line), not after minutes of diagnosis
     check_options(norm=args.norm, rest_noise=args.rest_noise, n_fit=args.n_fit, shape_tolerance=args.shape_tolerance,
                   split=args.holdout, n_sets=args.retrain_sets, cli=True)
-    rec = _read(args.input, args.sensor, args.topic)
-    sensor = args.sensor or rec.sensor
+    rec, sensor, _ = prepare(_read(args.input, args.sensor, args.topic), args.sensor, args.unit, str(args.input))
     noise = args.rest_noise
     if args.rest_recording is not None:
         noise = rest_noise(_read(args.rest_recording, sensor, None).raw)

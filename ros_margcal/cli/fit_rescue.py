@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -46,7 +47,8 @@ from ..model.heading import heading_p95, heading_p95_typical
 from ..stream.config import STATIC_SPREAD, PipelineConfig, plausibility, relative_spread
 
 __all__ = [
-    "MAX_READING", "MIN_SCALE", "SPIKE_GAP", "SPIKE_SHARE", "STATIC_SPREAD", "Part", "Rescue", "Screen", "check",
+    "HEADING_DETERMINED_DEG", "MAX_READING", "MIN_SCALE", "SPIKE_GAP", "SPIKE_SHARE", "STATIC_SPREAD", "Part",
+    "Rescue", "Screen", "check",
     "config_for", "heading_text", "reading_scale", "rescue", "screen"
 ]
 
@@ -60,6 +62,8 @@ SPIKE_GAP = 3.0
 SPIKE_SHARE = 0.02
 """At most this share of the readings (at least one) are spikes; more far readings are data, not glitches."""
 
+HEADING_DETERMINED_DEG = 90.0
+"""A predicted heading error p95 beyond this (or not finite) is printed as not determined, not as 9845001 deg."""
 RESCUE_SHARED_DROP = 0.5
 """Evidence an offset change needs here: one shape with two centres removing half the single fit's
 residual. Lower than the diagnosis's ``changes.MIN_SHARED_DROP`` (0.65), which searches every recording:
@@ -190,9 +194,10 @@ class Rescue:
         return not any(p.calibration is not None for p in self.parts)
 
 
-def config_for(sensor: str, unit: str) -> PipelineConfig:
-    """The online calibrator's limits for ``sensor`` in ``unit`` (an empty or unknown unit: no field-strength check)."""
-    return PipelineConfig.for_sensor(sensor, unit or "raw")
+def config_for(sensor: str, unit: str, **overrides: Any) -> PipelineConfig:
+    """The online calibrator's limits for ``sensor`` in ``unit`` (an empty or unknown unit: no field-strength check),
+    with ``overrides`` (``--set``)."""
+    return PipelineConfig.for_sensor(sensor, unit or "raw", **overrides)
 
 
 def check(cal: Calibration, cfg: PipelineConfig | None) -> str:
@@ -374,5 +379,11 @@ def heading_text(cal: Calibration) -> str:
         typ_tilt = heading_p95_typical(cal, tilt_deg=30.0, inclination=60.0)
     except (InputError, ValueError, np.linalg.LinAlgError):
         return ""
+    if not (math.isfinite(level) and level <= HEADING_DETERMINED_DEG):
+        return (f"predicted heading error p95: not determined (level figure {level:.3g} deg beyond "
+                f"{HEADING_DETERMINED_DEG:g} deg: the data leave the horizontal terms free)")
+    if not (math.isfinite(tilt) and tilt <= HEADING_DETERMINED_DEG):
+        return (f"predicted heading error p95: {level:.2g} deg level (95 % bound; typical {typ_level:.2g} deg); at 30 "
+                f"deg tilt not determined ({tilt:.3g} deg): the data leave the vertical terms free")
     return (f"predicted heading error p95: {level:.2g} deg level, {tilt:.2g} deg at 30 deg tilt (95 % bound; typical "
             f"{typ_level:.2g} / {typ_tilt:.2g} deg; 60 deg inclination)")

@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -27,10 +28,15 @@ import numpy as np
 from ..model.calibration import Calibration
 from ..model.calibration_file import load_calibrations
 from ..model.errors import ConfigError
+from ..recordings.read import read_recording
+from ..recordings.recording import drop_zero_rows
 from ..stream.calibrator import SensorCalibrator
-from ..stream.replay import replay
+from ..stream.config import PipelineConfig
+from ..stream.replay import replay, replay_plan
 from ..stream.status import Status
 from ..validation.shipped import load_validator
+from .raw_units import prepare, resolve_unit
+from .set_option import SET_HELP, parse_sets, sensor_options
 
 __all__ = ["example_paths", "register", "replay", "run"]
 
@@ -51,9 +57,12 @@ def register(subparsers: Any) -> None:
     p.add_argument("--topic", action="append", metavar="TOPIC",
                    help="bag: replay this Imu or MagneticField topic (repeatable; default: all; a sensor with several "
                    "topics gets one calibration per topic)")
-    p.add_argument("--unit", help="raw unit: T, mT, uT, nT, gauss, mG (mag), m/s^2, g, mg (accel), or any other "
-                   "name such as counts (limits learnt from the first samples); default T for mag, m/s^2 for accel "
-                   "(REP-145). In a bag it applies to --sensor, or to the sensor it is a unit of (gauss: MagneticField)")
+    p.add_argument("--unit", help="raw unit of the recording: T, mT, uT, nT, gauss, mG (mag), m/s^2, g, mg (accel), or "
+                   "any other name such as counts (not checked; limits learnt from the first samples); refused when the "
+                   "readings are no Earth field or gravity in it. Default: a bag's REP-145 unit (T, m/s^2), a CSV's "
+                   "inferred from the readings' size (said). In a bag it applies to --sensor, or to the sensor it is a "
+                   "unit of (gauss: MagneticField)")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE", help=SET_HELP)
     p.add_argument("--truth", type=Path, help="calibration YAML with the true calibrations, to report the error")
     p.add_argument("--status-every", type=float, default=10.0, metavar="S",
                    help="status line every S seconds of recording time (default 10; 0 = events only)")
@@ -141,6 +150,41 @@ def _heading_lines(st: Status) -> list[str]:
     return out
 
 
+def _checked_plan(path: Path, sensor: str | None, unit: str | None,
+                  topics: list[str] | None) -> tuple[str | None, str | None, dict[str, tuple[str, str]]]:
+    """The sensor and unit to replay with, and name -> (sensor, raw unit) of each calibrator: a CSV's sensor and
+    unit inferred when not given, a bag's units checked against its readings (``raw_units``); zero rows counted."""
+    plan = replay_plan(path, sensor=sensor, unit=unit, topics=topics)
+    if not plan:  # a CSV
+        rec = read_recording(path, sensor=sensor, order="file")
+        _, s, u = prepare(rec, sensor, unit, str(path))
+        return s, u, {s: (s, u)}
+    for name, (s, u, topic) in plan.items():
+        rec, zeros = drop_zero_rows(read_recording(path, sensor=s, topic=topic, order="file"))
+        if zeros:
+            print(f"{name}: {zeros} all-zero message(s) (x = y = z = 0), dropped by the calibrator's intake", file=sys.stderr)
+        given = u if unit is not None and u == unit else None
+        resolve_unit(s, rec.raw, given, default=u, where=f"on {topic} of {path}")
+    return sensor, unit, {name: (s, u) for name, (s, u, _) in plan.items()}
+
+
+def _options(sets: dict[str, dict[str, Any]], plan: dict[str, tuple[str, str]], full_only: bool) -> dict[str, Any]:
+    """The calibrators' options from ``--set`` (and ``--full-only``), checked for every sensor replayed; options for
+    one sensor only need a recording (or ``--sensor``) that replays that sensor alone."""
+    sensors = sorted({s for s, _ in plan.values()})
+    own = [s for s in ("mag", "accel") if sets.get(s)]
+    if own and len(sensors) > 1:
+        msg = (f"--set {own[0]}.KEY on a recording of both sensors: replay one with --sensor {own[0]}, or set the "
+               "option for both without the prefix")
+        raise ConfigError(msg)
+    options = sensor_options(sets, sensors[0]) if sensors else dict(sets.get("", {}))
+    if full_only:
+        options["partial_fit"] = False
+    for s, u in plan.values():
+        PipelineConfig.for_sensor(s, u, **options)  # ConfigError now, not after the replay started
+    return options
+
+
 def run(args: argparse.Namespace) -> int:
     """Entry of ``margcal replay``."""
     truth_path: Path | None = args.truth
@@ -155,11 +199,14 @@ def run(args: argparse.Namespace) -> int:
     if not math.isfinite(args.status_every) or args.status_every < 0:
         msg = f"--status-every must be >= 0, got {args.status_every}"
         raise ConfigError(msg)
+    sets = parse_sets(args.set)
+    sensor, unit, plan = _checked_plan(path, args.sensor, args.unit, args.topic)
+    options = _options(sets, plan, args.full_only)
     validator = load_validator(args.validator) if args.validator is not None else None
     print(f"replaying {path}" + (f" with the validator {args.validator}" if validator is not None else ""))
     printer = None if args.quiet else print
-    result = replay(path, sensor=args.sensor, unit=args.unit, status_every=args.status_every, on_line=printer,
-                    validator=validator, options={"partial_fit": False} if args.full_only else None, topics=args.topic)
+    result = replay(path, sensor=sensor, unit=unit, status_every=args.status_every, on_line=printer,
+                    validator=validator, options=options or None, topics=args.topic)
     cals: dict[str, SensorCalibrator] = result["calibrators"]
     topics: dict[str, str] = result.get("topics", {})
     truth = load_calibrations(truth_path) if truth_path is not None else {}

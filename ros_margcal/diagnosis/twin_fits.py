@@ -168,7 +168,7 @@ def _change_survives_twin(
     dirs = smooth_directions(cal.apply(pts[sub]), t=ts)
     noise = rest_noise(pts) / cal.raw_radius
     raw0 = simulate(cal, dirs, noise=noise, rng=np.random.default_rng(0), t=ts).raw
-    null = locate_offset_change(ts, raw0, min_drop=0.0, min_shared_drop=0.0)
+    null = locate_offset_change(ts, raw0, min_drop=0.0, min_shared_drop=0.0, min_sectors=0)
     null_drop = null.shared_drop if null is not None else 0.0
     log.debug("offset change: shared drop %.3f against the no-change twin's %.3f", change.shared_drop, null_drop)
     return change.shared_drop > null_drop + CHANGE_EVIDENCE

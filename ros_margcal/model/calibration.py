@@ -33,9 +33,11 @@ from numpy.typing import ArrayLike, NDArray
 from .errors import CalibrationFileError, InputError, as_vector3
 from .fields import MAX_ABS, MIN_NORM, number, numbers, show, stats_fields, string, strings
 
-__all__ = ["MODELS", "Calibration", "FitStats"]
+__all__ = ["FORCED", "MODELS", "Calibration", "FitStats"]
 
 MODELS = ("eye", "diag", "sym")
+FORCED = "forced past the guard rails"
+"""In ``method``: ``margcal calibrate --force`` wrote a calibration the guard rails refuse (the node loads it, warning)."""
 """Model kinds: offset only (W = k I), offset and per-axis gains, offset and symmetric matrix."""
 
 Array = NDArray[np.float64]

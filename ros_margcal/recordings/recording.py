@@ -12,7 +12,7 @@ from numpy.typing import NDArray
 from ..model.calibration import Calibration
 from ..model.errors import InputError, RecordingError
 
-__all__ = ["TIME_ORDERS", "Recording", "check_order", "check_sensor", "continue_clock", "time_order"]
+__all__ = ["TIME_ORDERS", "Recording", "check_order", "check_sensor", "continue_clock", "drop_zero_rows", "time_order"]
 
 log = logging.getLogger(__name__)
 Array = NDArray[np.float64]
@@ -75,6 +75,15 @@ class Recording:
             still=pick(self.still), gyro=pick(self.gyro), temp=pick(self.temp), effects=dict(self.effects),
             sensor=self.sensor, unit=self.unit, true_offset=pick(self.true_offset),
         )
+
+
+def drop_zero_rows(rec: Recording) -> tuple[Recording, int]:
+    """``rec`` without its all-zero readings (x = y = z = 0: a driver's placeholder, never a field or gravity),
+    and how many there were (``rec`` itself when none)."""
+    zero = ~np.any(np.asarray(rec.raw) != 0.0, axis=1) if len(rec) else np.zeros(0, dtype=bool)
+    n = int(zero.sum())
+    return (rec.slice(~zero), n) if n else (rec, 0)
+
 
 def check_sensor(sensor: str | None) -> None:
     if sensor not in (None, "mag", "accel"):

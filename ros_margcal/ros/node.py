@@ -68,7 +68,7 @@ from std_msgs.msg import Header, String
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
-from ..model.calibration import Calibration
+from ..model.calibration import FORCED, Calibration
 from ..model.calibration_file import load_calibrations, save_calibrations
 from ..model.errors import CalibrationFileError, ConfigError
 from ..stream.config import PipelineConfig, plausibility
@@ -197,6 +197,8 @@ def _implausible(cal: Calibration, sensor: str, cfg: PipelineConfig) -> str:
                 f"calibrate the recording in {cfg.unit}")
     if not cfg.norm_min <= cal.norm <= cfg.norm_max:
         return f"its field norm {cal.norm:.6g} {cfg.unit} is outside [{cfg.norm_min:.6g}, {cfg.norm_max:.6g}] {cfg.unit}"
+    if FORCED in cal.method:
+        return ""  # the user wrote it past the guard rails on purpose (margcal calibrate --force): loaded, with a warning
     # the guard rails of the node's own fits (offset, gains, field radius): a runaway batch fit is not published;
     # the parameter uncertainty is left out (a partial calibration's vertical terms are the prior's, and wide)
     why = plausibility(cal.replace(covariance=None, parameter_names=()), cfg)
@@ -571,8 +573,11 @@ class MargCalNode(Node):
             why = _implausible(cal, s, self._configs[s])
             if why:
                 self.get_logger().error(f"refusing the {s} calibration of {path}: {why}; the {s} starts UNCALIBRATED")
-            else:
-                usable[s] = cal
+                continue
+            if FORCED in cal.method:
+                self.get_logger().warning(f"the {s} calibration of {path} is {cal.method!r}: loaded as given "
+                                          "(margcal calibrate --force)")
+            usable[s] = cal
         self.get_logger().info(f"loaded calibrations {sorted(usable)} from {path}")
         return usable
 

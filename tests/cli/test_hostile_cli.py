@@ -91,7 +91,7 @@ def test_keep_spikes_fits_every_reading(tmp_path: Path, capsys: pytest.CaptureFi
     assert rec.truth is not None
     rec.raw[300] = rec.truth.offset + np.array([20.0 * rec.truth.norm, 0.0, 0.0])
     path = write_csv(tmp_path / "spike_mag.csv", rec)
-    code, _, err = _run(capsys, "calibrate", str(path), "--keep-spikes", "--no-rescue")
+    code, _, err = _run(capsys, "calibrate", str(path), "--unit", "T", "--keep-spikes", "--no-rescue")
     assert not any("dropped" in line for line in err)
     assert code == 2 and len(err) == 1 and "did not converge" in err[0], err
 
@@ -142,7 +142,7 @@ def test_an_absurd_norm_or_f_scale_is_one_line_and_exit_2(tmp_path: Path, capsys
     """``--norm 1e308`` / ``1e-308`` used to raise ZeroDivisionError in the fit: now one line naming the option."""
     path = write_csv(tmp_path / "clean_mag.csv", _sphere(500))
     extra = ["--loss", "huber"] if option == "--f-scale" else []
-    code, _, err = _run(capsys, "calibrate", str(path), option, value, *extra)
+    code, _, err = _run(capsys, "calibrate", str(path), "--unit", "T", option, value, *extra)
     assert code == 2 and len(err) == 1, err
     assert err[0].startswith("margcal calibrate: error: ") and f"{option} {float(value):g}" in err[0]
 
@@ -152,7 +152,7 @@ def test_readings_too_small_to_square_are_one_line_and_exit_2(tmp_path: Path, ca
     rec = _sphere(500)
     rec.raw = rec.raw * 1e-296
     path = write_csv(tmp_path / "tiny_mag.csv", rec)
-    code, _, err = _run(capsys, "calibrate", str(path))
+    code, _, err = _run(capsys, "calibrate", str(path), "--unit", "counts")  # a unit without a scale: not checked
     assert code == 2 and len(err) == 1 and "too small to fit" in err[0], err
 
 

@@ -2,7 +2,8 @@
 
 Bad options are refused up front (16); a static recording is ``unexplained`` because it is static (17);
 an interrupt while the report is written leaves the previous pair of files (18); a recording whose clock
-restarts is diagnosed in file order (19).
+restarts is diagnosed in file order (19). One smooth turn holds no offset change (issue 25); a step during
+repeated turns still does.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import pytest
 
 from ros_margcal.diagnosis import check_options, diagnose, summary, write_report
 from ros_margcal.diagnosis import report as report_module
+from ros_margcal.diagnosis.changes import locate_offset_change, sectors
 from ros_margcal.diagnosis.inputs import file_order_times
 from ros_margcal.diagnosis.twin_fits import static_reason
 from ros_margcal.model.errors import ConfigError
@@ -262,3 +264,64 @@ def test_cli_on_a_restarted_clock_never_advises_an_option_it_lacks(tmp_path: Pat
         assert code == 2 and len(err) == 1, err
         assert "sort=True" not in err[0] and "split it where the time goes back" in err[0], err[0]
         assert "after sample" in err[0]
+
+
+# -- issue 25: one smooth turn is no offset change ------------------------------------------------------------------
+
+
+def _turn(seed: int, turns: float, step: float = 0.0, tilt_deg: float = 1.5) -> tuple[np.ndarray, np.ndarray]:
+    """A vehicle turning smoothly (yaw from 0 to ``turns`` x 360 degrees, easing in and out, 3 s still at each end)
+    with +-``tilt_deg`` of roll and pitch, in a 48 µT field at 60 degrees inclination; soft iron within 5 %, hard iron
+    N(0, 20 µT), 0.1 µT noise, 50 Hz; ``step`` field norms of hard iron added half way."""
+    rng = np.random.default_rng([seed, 25])
+    t = np.arange(0.0, 20.0 * turns + 6.0, 0.02)
+    s = np.clip((t - 3.0) / (20.0 * turns), 0.0, 1.0)
+    yaw = 2 * np.pi * turns * (s - np.sin(2 * np.pi * s) / (2 * np.pi))
+    roll = np.radians(tilt_deg) * np.sin(2 * np.pi * t / 7.0)
+    pitch = np.radians(tilt_deg) * np.sin(2 * np.pi * t / 11.0 + 1.0)
+    inc = np.radians(60.0)
+    field = 48.0 * np.array([np.cos(inc), 0.0, -np.sin(inc)])
+    cy, sy, cr, sr, cp, sp = np.cos(yaw), np.sin(yaw), np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch)
+    # body = (Rz(yaw) Ry(pitch) Rx(roll))^T world
+    hx, hy, hz = field
+    x1, y1 = cy * hx + sy * hy, -sy * hx + cy * hy
+    x2, z2 = cp * x1 - sp * hz, sp * x1 + cp * hz
+    y3, z3 = cr * y1 + sr * z2, -sr * y1 + cr * z2
+    body = np.column_stack([x2, y3, z3])
+    soft = np.eye(3) + rng.uniform(-0.05, 0.05, (3, 3))
+    raw = body @ soft.T + rng.normal(scale=20.0, size=3)
+    if step:
+        raw[t > t[-1] / 2] += step * 48.0 * np.array([0.8, 0.5, -0.33])
+    return t, raw + rng.normal(scale=0.1, size=raw.shape)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_one_smooth_turn_declares_no_offset_change(seed: int) -> None:
+    """A car's single circle split in two leaves two arcs that fit better apart (one shape with two centres removed
+    0.50-0.67 of the residual: "offset changed by 195 % of the field"); neither half goes round, so no change."""
+    t, raw = _turn(seed, 1.0)
+    assert locate_offset_change(t, raw, min_shared_drop=0.5) is None
+    found = locate_offset_change(t, raw, min_shared_drop=0.5, min_sectors=0)  # the old rule fires: the arcs' split
+    assert found is not None and found.relative_step > 0.2 and found.sectors <= 10
+    half = raw[: len(raw) // 2]
+    assert sectors(half) <= 10
+
+
+@pytest.mark.parametrize("seed", range(2))
+def test_a_step_during_repeated_turns_is_still_located(seed: int) -> None:
+    """Three turns with a hard-iron step of 0.3 field norms half way: located within 1 s of the step."""
+    t, raw = _turn(seed, 3.0, step=0.3)
+    found = locate_offset_change(t, raw, min_shared_drop=0.5)
+    assert found is not None and abs(found.t - t[-1] / 2) < 1.0
+    assert found.sectors >= 11
+
+
+def test_calibrate_on_one_smooth_turn_reports_no_change(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``margcal calibrate`` on the single turn: no "offset changed" in its diagnosis."""
+    from ros_margcal.cli import main
+
+    t, raw = _turn(0, 1.0)
+    path = write_csv(tmp_path / "turn_mag.csv", Recording(t=t, raw=raw, sensor="mag"))
+    main(["calibrate", str(path), "--unit", "uT"])
+    out = capsys.readouterr().out
+    assert "offset changed" not in out and "requested fit" in out

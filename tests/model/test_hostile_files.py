@@ -128,7 +128,7 @@ def test_margcal_calibrate_refuses_a_fifo_output_on_one_line(tmp_path: Path, cap
     csv = write_csv(tmp_path / "m_mag.csv", rec)
     fifo = tmp_path / "out.yaml"
     os.mkfifo(fifo)
-    assert main(["calibrate", str(csv), "--sensor", "mag", "-o", str(fifo)]) == 2
+    assert main(["calibrate", str(csv), "--sensor", "mag", "--unit", "T", "-o", str(fifo)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "FIFO" in err[0], err
     assert stat.S_ISFIFO(fifo.lstat().st_mode)

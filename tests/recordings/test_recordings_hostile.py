@@ -107,5 +107,5 @@ def test_replay_of_a_bag_without_messages_fails_like_calibrate(tmp_path: Path, c
     path = write_bag(tmp_path / "empty.mcap", {"imu/mag": empty})
     assert main(["replay", str(path)]) == 2
     err = capsys.readouterr().err
-    assert "no sensor_msgs/Imu or MagneticField messages" in err and "Traceback" not in err
+    assert ("no sensor_msgs/Imu or MagneticField messages" in err or "holds no messages" in err) and "Traceback" not in err
     assert main(["calibrate", str(path), "--sensor", "mag"]) == 2

@@ -30,7 +30,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from std_srvs.srv import Trigger  # noqa: E402
 from visualization_msgs.msg import Marker, MarkerArray  # noqa: E402
 
-from ros_margcal.model.calibration import Calibration  # noqa: E402
+from ros_margcal.model.calibration import FORCED, Calibration  # noqa: E402
 from ros_margcal.model.calibration_file import save_calibrations  # noqa: E402
 from ros_margcal.ros.markers import STATE_COLOURS, rotation_quaternion  # noqa: E402
 from ros_margcal.ros.messages import calibration_from_string, mag_to_numpy  # noqa: E402
@@ -400,6 +400,20 @@ def test_a_calibration_file_that_does_not_fit_the_sensor_is_refused(context: Con
         h.spin_until(lambda: False, 0.5)
         assert not h.calibrations and h.node.calibrations["mag"] is None
         assert h.spin_until(lambda: h.last_status().message.startswith("collecting") or "no samples" in h.last_status().message, 5.0)
+    finally:
+        h.close()
+
+
+def test_a_forced_calibration_file_is_loaded(context: Context, classes: MessageClasses, tmp_path: Path) -> None:
+    """A file `margcal calibrate --force` wrote past the guard rails (its method says so) is loaded as given."""
+    path = tmp_path / "cal.yaml"
+    cal = Calibration(offset=np.array([3.3e-3, 0.0, 0.0]), matrix=np.eye(3), norm=50e-6, sensor="mag", unit="T",
+                      method=f"lm {FORCED}: offset 3.3e-3 T > limit")
+    save_calibrations(path, {"mag": cal})
+    h = Harness(context, classes, path)
+    try:
+        assert h.spin_until(lambda: bool(h.calibrations), 5.0)
+        assert h.node.calibrations["mag"] is not None and h.node.calibrations["mag"].allclose(cal)
     finally:
         h.close()
 

@@ -1,0 +1,68 @@
+"""The stream's guard rails for ``margcal calibrate``: what the online calibrator would not publish is not written.
+
+A batch fit (plain, per side of an offset change, or with the prior) is refused when
+``stream.config.plausibility`` refuses it (field norm implausible in a known unit, parameter uncertainty,
+offset beyond the limit, axis gains), and a magnetometer's also when its predicted heading error p95,
+level (``model.heading``), exceeds ``max_heading_p95_deg`` or cannot be determined; a magnetometer's
+prior fit (partial by design) is judged by that figure instead of the uncertainty of its prior terms. The command then
+exits ``EXIT_REFUSED`` without writing; ``--force`` writes it, with ``forced`` and the reason in the
+calibration's ``method`` (the file's free-form field; the node shows it) and in the JSON.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+
+from ..model.calibration import FORCED, Calibration
+from ..model.errors import InputError
+from ..model.heading import heading_p95
+from ..stream.config import PipelineConfig, plausibility
+from .fit_rescue import HEADING_DETERMINED_DEG
+
+__all__ = ["EXIT_REFUSED", "forced", "norm_source", "refusal"]
+
+EXIT_REFUSED = 4
+"""Exit code when a calibration was fitted but the guard rails refuse it (nothing written)."""
+_NO_STD_LIMIT = 10.0  # the largest max_parameter_std (FIELD_SPECS): a partial fit's prior terms are not judged by it
+
+
+def _heading(cal: Calibration, cfg: PipelineConfig) -> str:
+    """Why the predicted level heading error refuses ``cal`` ("" when within the limit or not computable)."""
+    try:
+        level = heading_p95(cal, tilt_deg=0.0, inclination=60.0)
+    except (InputError, ValueError, np.linalg.LinAlgError):
+        return ""  # no covariance over the symmetric model (diag, eye, mvee): plausibility judged it
+    if not (math.isfinite(level) and level <= HEADING_DETERMINED_DEG):
+        return "predicted heading error not determined (the data leave the horizontal terms free)"
+    if level > cfg.max_heading_p95_deg:
+        return (f"predicted heading error p95 {level:.3g} deg level > limit {cfg.max_heading_p95_deg:.3g} deg "
+                "(max_heading_p95_deg)")
+    return ""
+
+
+def refusal(cal: Calibration, cfg: PipelineConfig | None) -> str:
+    """Why the stream would not publish ``cal`` (module docstring), "" when it would.
+
+    A magnetometer's prior (MAP) fit is partial by design: as in the stream, its predicted heading error
+    judges it, not the uncertainty of the terms it keeps from the prior.
+    """
+    if cfg is None:
+        return ""
+    partial = cfg.sensor == "mag" and cal.method.startswith("map")
+    why = plausibility(cal, replace(cfg, max_parameter_std=_NO_STD_LIMIT) if partial else cfg)
+    if why:
+        return why
+    return _heading(cal, cfg) if cfg.sensor == "mag" else ""
+
+
+def forced(cal: Calibration, why: str) -> Calibration:
+    """``cal`` marked as written past the guard rails: ``method`` says forced and why."""
+    return cal.replace(method=f"{cal.method} {FORCED}: {why}")
+
+
+def norm_source(std: dict[str, float], fixed: str) -> str:
+    """Where the printed norm comes from: the data (with its std), else ``fixed`` (--norm, gravity, the radius)."""
+    return f" +- {std['norm']:.2g} (the data)" if "norm" in std else f" ({fixed}, fixed)"
