@@ -48,8 +48,8 @@ from numpy.typing import ArrayLike, NDArray
 from .errors import InputError
 from .fitting_core import mad_sigma, unpack
 
-__all__ = ["GYRO_BIAS_STD", "GYRO_SCALE_STD", "MIN_EXPLAINED", "GyroBlocks", "GyroTerm", "explained", "gyro_blocks",
-           "gyro_residuals"]
+__all__ = ["FRAME_BETTER", "GYRO_BIAS_STD", "GYRO_SCALE_STD", "MIN_EXPLAINED", "GyroBlocks", "GyroTerm", "explained",
+           "frame_check", "gyro_blocks", "gyro_residuals"]
 
 Array = NDArray[np.float64]
 
@@ -66,6 +66,9 @@ for a perfect gyro, 1.8-2.9 for 3 %)."""
 MIN_EXPLAINED = 0.9
 """Least share of the field's change within blocks that the gyro must account for at a fit's solution; less
 means the rate and the reading are not in one frame (or not in step), and the gyro is not used."""
+FRAME_BETTER = 0.5
+"""``frame_check``: another axis order or sign of the gyro is named (and the gyro not used) when it leaves at most
+this share of the field's change unexplained that the gyro's own frame leaves."""
 _GAP = 3.0  # a step longer than this many median steps ends a block: the samples are not consecutive
 _E = [np.array(m, dtype=np.float64) for m in (  # d W / d (w_xx, w_yy, w_zz, w_xy, w_xz, w_yz)
     [[1, 0, 0], [0, 0, 0], [0, 0, 0]], [[0, 0, 0], [0, 1, 0], [0, 0, 0]], [[0, 0, 0], [0, 0, 0], [0, 0, 1]],
@@ -77,13 +80,14 @@ class GyroBlocks:
     """Per block of consecutive samples: ``d`` = v_m - v_0 (N, 3), ``theta`` = sum theta (N, 3), ``p`` = sum
     dt vbar (N, 3), ``t`` = sum dt (N,) (module docstring) and, in place of ``S = sum theta vbar^T``,
     ``ax[m, k]`` = axial(E_m S^T E_kk) for W's six basis matrices and the three gyro axes (6, 3, N, 3),
-    computed once (``_axial_basis``)."""
+    computed once (``_axial_basis``); ``s`` = S itself (N, 3, 3) for ``frame_check``."""
 
     d: Array
     theta: Array
     p: Array
     t: Array
     ax: Array
+    s: Array
 
     def __len__(self) -> int:
         return len(self.t)
@@ -104,7 +108,8 @@ def gyro_blocks(t: ArrayLike, xyz: ArrayLike, gyro: ArrayLike, k: int) -> GyroBl
         msg = f"gyro blocks need stamps, readings and rates of one length and k >= 2, got {len(tt)}, {len(v)}, {len(w)}, k={k}"
         raise InputError(msg)
     nb = len(tt) // k
-    empty = GyroBlocks(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros((6, 3, 0, 3)))
+    empty = GyroBlocks(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros((6, 3, 0, 3)),
+                       np.zeros((0, 3, 3)))
     if nb == 0:
         return empty
     n = nb * k
@@ -120,7 +125,7 @@ def gyro_blocks(t: ArrayLike, xyz: ArrayLike, gyro: ArrayLike, k: int) -> GyroBl
     th = 0.5 * (wb[:, 1:] + wb[:, :-1]) * dt[..., None]
     s = np.einsum("nji,njk->nik", th, vbar)
     return GyroBlocks(d=vb[:, -1] - vb[:, 0], theta=th.sum(axis=1), p=np.einsum("nj,nji->ni", dt, vbar),
-                      t=dt.sum(axis=1), ax=_axial_basis(s))
+                      t=dt.sum(axis=1), ax=_axial_basis(s), s=s)
 
 
 def _axial(m: Array) -> Array:
@@ -203,3 +208,48 @@ def explained(blocks: GyroBlocks, r: Array) -> float:
     at a solution: ``1 - sum r^2 / sum |d|^2`` (1: all of it; nan without change)."""
     total = float(np.sum(blocks.d * blocks.d))
     return 1.0 - float(np.sum(np.square(r))) / total if total > 0 else float("nan")
+
+
+def _signed_permutations() -> list[Array]:
+    """The 48 signed permutation matrices (the 24 axis-aligned rotations and their mirror images), the
+    identity first, then by how many axes they change (the simplest description of a frame wins a tie)."""
+    out = []
+    for perm in ((0, 1, 2), (1, 0, 2), (0, 2, 1), (2, 1, 0), (1, 2, 0), (2, 0, 1)):
+        for signs in np.ndindex(2, 2, 2):
+            m = np.zeros((3, 3))
+            m[[0, 1, 2], list(perm)] = [1.0 - 2.0 * sg for sg in signs]
+            out.append(m)
+    return sorted(out, key=lambda m: int(np.sum(m != np.eye(3))))
+
+
+_FRAMES = _signed_permutations()
+
+
+def frame_name(m: Array) -> str:
+    """``(x, y, -z)``: the gyro's axes that give the magnetometer frame's x, y and z rates under ``m``."""
+    return "(" + ", ".join(("-" if row[np.argmax(np.abs(row))] < 0 else "") + "xyz"[int(np.argmax(np.abs(row)))]
+                           for row in m) + ")"
+
+
+def frame_check(blocks: GyroBlocks, offset: ArrayLike, matrix: ArrayLike) -> tuple[str, float, float]:
+    """Does another axis order or sign of the gyro explain the field's turning under the calibration ``(offset,
+    matrix)`` far better than its own frame? Each of the 48 signed permutations ``m`` of the rate (``m omega``,
+    no bias or scale error) is scored by ``explained``; the best is returned when its unexplained share is at
+    most ``FRAME_BETTER`` of the gyro's own frame's: (its name, e.g. ``"(x, y, -z)"``, its share, the own
+    frame's share), else ``("", nan, own share)``. Vectorised over blocks: microseconds per frame."""
+    b = np.asarray(offset, dtype=np.float64)
+    w = np.asarray(matrix, dtype=np.float64)
+    if not len(blocks):
+        return "", float("nan"), float("nan")
+    winv_t, wb = np.linalg.inv(w).T, w @ b
+    shares = []
+    for m in _FRAMES:  # S' = m S, Theta' = Theta m^T; u = axial(W S'^T) - Theta' x W b
+        u = _axial(w @ blocks.s.transpose(0, 2, 1) @ m.T) - np.cross(blocks.theta @ m.T, wb)
+        shares.append(explained(blocks, blocks.d + u @ winv_t))
+    own = shares[0]
+    if not np.isfinite(shares).any():
+        return "", float("nan"), own
+    k = int(np.nanargmax(shares))
+    if k == 0 or not (1.0 - shares[k]) <= FRAME_BETTER * (1.0 - own):
+        return "", float("nan"), own
+    return frame_name(_FRAMES[k]), shares[k], own

@@ -65,7 +65,9 @@ noise (MAD, re-estimated with ``sigma``), with the gyro's bias and scale errors 
 (prior sd ``GYRO_BIAS_STD``, ``gyro_scale_std``) marginalised out of the covariance. A ring then determines
 the vertical terms too, as far as the gyro's scale on its horizontal axes is known. A
 gyro that at the solution accounts for less than ``MIN_EXPLAINED`` of the field's turning (another frame)
-is dropped and the fit redone without it.
+is dropped and the fit redone without it; so is one whose rates, re-ordered or with an axis negated, would explain
+the turning far better (``fitting_gyro.frame_check``: ``PriorFit.gyro_frame`` names that order, the IMU's frame
+flipped or rotated against the magnetometer's).
 
 **Prior.** The last accepted calibration with its covariance (inflated by ``inflate`` so the data can
 move it), or, with none, ``broad_prior``: zero offset and identity matrix scaled to the data's mean
@@ -96,7 +98,8 @@ from .calibration import Calibration, FitStats
 from .errors import ConvergenceError, DegenerateDataError, InputError, as_points
 from .fitting_core import mad_sigma, pack, parameter_names, resjac, unpack
 from .fitting_geometric import geometric, norm_spreads
-from .fitting_gyro import GYRO_BIAS_STD, GYRO_SCALE_STD, MIN_EXPLAINED, GyroBlocks, GyroTerm, explained
+from .fitting_gyro import GYRO_BIAS_STD, GYRO_SCALE_STD, MIN_EXPLAINED, GyroBlocks, GyroTerm, explained, frame_check
+from .fitting_level import LevelTerm
 from .fitting_noise import Whitener, noise_model, whitener
 
 __all__ = ["BROAD_MATRIX_STD", "BROAD_OFFSET_STD", "UPDATED_VARIANCE_RATIO", "PriorFit", "broad_prior", "fit_with_prior",
@@ -111,6 +114,7 @@ BROAD_MATRIX_STD = 0.1
 """Prior standard deviation of each matrix entry without a previous calibration, relative to its scale."""
 UPDATED_VARIANCE_RATIO = 0.25
 """A parameter is *updated* by the data when its posterior variance is below this share of the prior's."""
+Term = GyroTerm | LevelTerm
 _MIN_SIGMA_REL = 1e-6
 _LM_FTOL = 1e-9
 _LM_XTOL = 1e-10
@@ -135,6 +139,9 @@ class PriorFit:
             at the solution (``fitting_gyro.explained``; nan without); below ``MIN_EXPLAINED`` the gyro was
             not used (``gyro_used``) and the fit is the magnetometer's alone.
         gyro_used: the gyro blocks are part of the fit.
+        gyro_frame: another axis order or sign of the rates that explains the field's turning far better
+            (``fitting_gyro.frame_check``, e.g. ``"(x, y, -z)"``): the gyro was then not used; "" otherwise.
+        level: the level pseudo-observation was part of the fit (``fit_with_prior(level=True)``, ``fitting_level``).
         gyro_bias: their estimated bias, rad/s, and gyro_scale: their scale errors (zeros when not used).
     """
 
@@ -150,6 +157,8 @@ class PriorFit:
     gyro_used: bool = False
     gyro_bias: tuple[float, float, float] = (0.0, 0.0, 0.0)
     gyro_scale: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    gyro_frame: str = ""
+    level: bool = False
 
     @property
     def partial(self) -> bool:
@@ -197,7 +206,7 @@ def fit_with_prior(points: ArrayLike, prior: Calibration, *, sigma: float | None
                    max_iter: int = 200, stamp: float = 0.0, time_ordered: bool = False,
                    norm_rel_std: float = 0.0, start: Calibration | None = None,
                    spread: ArrayLike | None = None, gyro: GyroBlocks | None = None,
-                   gyro_scale_std: float = GYRO_SCALE_STD) -> PriorFit:
+                   gyro_scale_std: float = GYRO_SCALE_STD, level: bool = False) -> PriorFit:
     """MAP fit of the symmetric model to ``points`` (N, 3) given a prior calibration (module docstring).
 
     Args:
@@ -225,6 +234,8 @@ def fit_with_prior(points: ArrayLike, prior: Calibration, *, sigma: float | None
             When at the solution the gyro accounts for less than ``MIN_EXPLAINED`` of the field's change, the
             fit is redone without it.
         gyro_scale_std: the prior standard deviation of each gyro scale error (``fitting_gyro.GYRO_SCALE_STD``).
+        level: without gyro blocks (or when they are dropped), the plane of the calibrated points is held level within
+            ``fitting_level.LEVEL_TILT_STD_DEG`` (a near-level ring: ``fitting_level``).
 
     Raises:
         InputError: bad points, prior or argument; DegenerateDataError: fewer than 3 points;
@@ -261,7 +272,7 @@ def fit_with_prior(points: ArrayLike, prior: Calibration, *, sigma: float | None
         starts = [np.r_[th, float(start.norm)] if theta0.size == 10 else th]  # a Calibration is finite
     else:
         starts = _starts(pts, theta0, prior.raw_radius)
-    term = None
+    term: Term | None = None
     if gyro is not None and len(gyro):
         at = theta0.size  # the gyro's bias and scale errors follow the calibration's parameters (and the norm)
         theta0, info0 = np.r_[theta0, np.zeros(6)], np.pad(info0, (0, 6))
@@ -269,6 +280,8 @@ def fit_with_prior(points: ArrayLike, prior: Calibration, *, sigma: float | None
         chol = np.linalg.cholesky(info0).T
         starts = [np.r_[th, np.zeros(6)] for th in starts]
         term = GyroTerm(gyro, 1.0, at)
+    elif level:  # two pseudo-observations, no parameters of their own
+        term = LevelTerm(pts, 1.0, theta0.size)
     theta, s, iters = _best_solve(z, starts, theta0, info0, chol, n0, sigma, floor, max_iter, sp, term)
     r = geometric(z, _geo(theta, term), n0, sp)[0]
     model = noise_model(r) if time_ordered else None
@@ -283,12 +296,24 @@ def fit_with_prior(points: ArrayLike, prior: Calibration, *, sigma: float | None
             raise ConvergenceError(msg)
         iters += k
     share_g = math.nan
-    if term is not None:
-        share_g = explained(gyro, term.residuals(theta)[0])
-        if not share_g >= MIN_EXPLAINED:  # rate and reading in different frames: the magnetometer alone
+    if isinstance(term, GyroTerm):
+        share_g = explained(term.blocks, term.residuals(theta)[0])
+        frame = frame_check(term.blocks, *unpack(theta[:9], "sym"))[0]
+        if (not share_g >= MIN_EXPLAINED or frame) and start is not None:
+            # a given start (a stream's previous solution) may be the ring's mirror centre, where a right gyro
+            # turns the field the wrong way: every default start once more before the gyro is blamed
+            again = fit_with_prior(points, prior, sigma=sigma, inflate=inflate, max_iter=max_iter, stamp=stamp,
+                                   time_ordered=time_ordered, norm_rel_std=norm_rel_std, spread=spread, gyro=gyro,
+                                   gyro_scale_std=gyro_scale_std, level=level)
+            if again.gyro_used:
+                return again
+        if not share_g >= MIN_EXPLAINED or frame:  # rate and reading in different frames: the magnetometer alone
             alone = fit_with_prior(points, prior, sigma=sigma, inflate=inflate, max_iter=max_iter, stamp=stamp,
-                                   time_ordered=time_ordered, norm_rel_std=norm_rel_std, start=start, spread=spread)
-            return dataclasses.replace(alone, gyro_explained=share_g)
+                                   time_ordered=time_ordered, norm_rel_std=norm_rel_std, start=start, spread=spread,
+                                   level=level)
+            # the frame judged again at the magnetometer's own solution, which the wrong rates did not pull
+            frame = frame_check(term.blocks, alone.calibration.offset, alone.calibration.matrix)[0]
+            return dataclasses.replace(alone, gyro_explained=share_g, gyro_frame=frame)
     r = geometric(z, _geo(theta, term), n0, sp)[0]
     _, jt = _residuals(z, theta, n0, sp, white, term)
     data_info = jt @ jt.T / (s_w * s_w)
@@ -309,14 +334,21 @@ def fit_with_prior(points: ArrayLike, prior: Calibration, *, sigma: float | None
                     from_prior=tuple(nm for nm in NAMES if nm not in updated),
                     data_share=dict(zip(NAMES, share.tolist(), strict=True)), sigma=s, iterations=iters,
                     residual_sigma=s if sigma is None else max(mad_sigma(r), floor), gyro_explained=share_g,
-                    gyro_used=term is not None,
-                    gyro_bias=(0.0, 0.0, 0.0) if term is None else tuple(float(x) for x in theta[term.at:term.at + 3]),
-                    gyro_scale=(0.0, 0.0, 0.0) if term is None else tuple(float(x) for x in theta[term.at + 3:]))
+                    gyro_used=isinstance(term, GyroTerm), level=isinstance(term, LevelTerm),
+                    **_gyro_estimates(theta, term))
+
+
+def _gyro_estimates(theta: Array, term: Term | None) -> dict[str, tuple[float, ...]]:
+    """The gyro's bias and scale errors of a fit with gyro blocks (zeros without)."""
+    if not isinstance(term, GyroTerm):
+        return {"gyro_bias": (0.0, 0.0, 0.0), "gyro_scale": (0.0, 0.0, 0.0)}
+    return {"gyro_bias": tuple(float(x) for x in theta[term.at:term.at + 3]),
+            "gyro_scale": tuple(float(x) for x in theta[term.at + 3:term.at + 6])}
 
 
 def _best_solve(z: Array, starts: list[Array], theta0: Array, info0: Array, chol: Array, n0: float,
                 sigma: float | None, floor: float, max_iter: int, sp: Array | None,
-                term: GyroTerm | None = None) -> tuple[Array, float, int]:
+                term: Term | None = None) -> tuple[Array, float, int]:
     """The unweighted MAP solve from each start; the lowest posterior cost wins, every start judged at the
     lowest noise found: theta, sigma, evaluations.
 
@@ -373,7 +405,7 @@ def _sphere_centres(pts: Array, radius: float) -> tuple[list[Array], bool]:
 
 
 def _solve(z: Array, start: Array, theta0: Array, info0: Array, n: float, sigma: float | None, floor: float,
-           max_iter: int, sp: Array | None = None, term: GyroTerm | None = None) -> tuple[Array, float, int]:
+           max_iter: int, sp: Array | None = None, term: Term | None = None) -> tuple[Array, float, int]:
     """One MAP solve from ``start`` (sigma, and the gyro's weight, re-estimated between rounds unless sigma
     is given): theta, sigma, evaluations."""
     theta, iters = start.copy(), 0
@@ -394,7 +426,7 @@ def _solve(z: Array, start: Array, theta0: Array, info0: Array, n: float, sigma:
 
 
 def _lm(z: Array, theta: Array, theta0: Array, info0: Array, n: float, s: float, max_iter: int,
-        sp: Array | None = None, white: Whitener | None = None, term: GyroTerm | None = None) -> tuple[Array, int]:
+        sp: Array | None = None, white: Whitener | None = None, term: Term | None = None) -> tuple[Array, int]:
     """Levenberg-Marquardt on ``S(theta)`` through its normal equations: ``(H + lam diag H) step = -g`` with
     ``H = J^T J / s^2 + P_0^-1`` (10 x 10 at most), one residual-and-Jacobian evaluation per trial, the damping
     updated from the ratio of the actual to the predicted decrease (Nielsen's rule); stops when a step
@@ -443,7 +475,7 @@ def _lm(z: Array, theta: Array, theta0: Array, info0: Array, n: float, s: float,
 
 
 def _residuals(z: Array, theta: Array, n: float, sp: Array | None, white: Whitener | None,
-               term: GyroTerm | None = None) -> tuple[Array, Array]:
+               term: Term | None = None) -> tuple[Array, Array]:
     """``fitting_geometric.geometric``, through the whitening filter when one is given, and the gyro's
     residuals after them, brought to the same noise (``GyroTerm.weight``)."""
     r, jt = geometric(z, _geo(theta, term), n, sp)
@@ -459,13 +491,13 @@ def _residuals(z: Array, theta: Array, n: float, sp: Array | None, white: Whiten
     return np.concatenate([r, term.weight * rg]), full
 
 
-def _geo(theta: Array, term: GyroTerm | None) -> Array:
-    """The parameters of the geometric residual: ``theta`` without the gyro's (they follow at ``term.at``)."""
+def _geo(theta: Array, term: Term | None) -> Array:
+    """The parameters of the geometric residual: ``theta`` without the term's (they follow at ``term.at``)."""
     return theta if term is None else theta[:term.at]
 
 
 def _cost(z: Array, theta: Array, theta0: Array, chol: Array, n: float, s: float, sp: Array | None = None,
-          term: GyroTerm | None = None) -> float:
+          term: Term | None = None) -> float:
     """The posterior cost ``S(theta)`` at noise ``s``."""
     r = _residuals(z, theta, n, sp, None, term)[0] / s
     dp = chol @ (theta - theta0)

@@ -31,9 +31,18 @@ guard rails (``config.guard_rails`` without the parameter-uncertainty check, whi
 replaces: the prior-held parameters are uncertain by construction) pass, and the data are a ring or band
 (tilt seen at most ``partial_max_tilt_deg``, 45° by default: richer motion is the full path's) turned
 about the body z axis (the calibrated field visits at least ``partial_min_azimuth`` of 36 azimuth
-sectors, 90 % by default): the heading figures assume z up, and a cap about another axis (a sensor
+sectors, 90 % by default, counted about the centre of the ring it traces, ``ring_centre``: a fit whose offset
+misses that centre still sees the turns the field made): the heading figures assume z up, and a cap about another axis (a sensor
 waved about one pose) would be judged at the wrong attitudes. These cheap checks come first: a fit they
 refuse costs no norm-uncertainty fit and no heading figures.
+
+**Near-level rings.** A ring whose raw readings leave its plane by at most ``NEAR_LEVEL_TILT_DEG``
+(``ring_tilt_deg``: a car, a robot on a floor) leaves the tilt of the calibrated frame to the prior's cross
+terms, and the level heading with it. Without a usable gyro the fit then holds the ring's plane level
+(``fit_with_prior(level=True)``, ``model.fitting_level``: the sensor's z axis vertical on average), from every
+default start, with a wider norm prior (``NEAR_LEVEL_NORM_REL_STD``); the status says so. The level figure is
+then the data's (with the assumption's floor), the ±30° one the prior's (large). A sensor mounted tilted on
+the vehicle is calibrated in the vehicle's level frame, which no magnetometer can tell from its own.
 
 **Early fit on rich motion** (``early_fit``). Before the first calibration, the same MAP fit on richer
 data (a tumble's first seconds, on the recent samples while the series is short) is
@@ -74,9 +83,10 @@ from ..model.fitting_prior import broad_prior, fit_with_prior, posterior_at
 from ..model.heading import heading_p95, heading_p95_typical, inclination_deg
 from .config import PipelineConfig, guard_rails
 
-__all__ = ["AZIMUTH_SECTORS", "DEFAULT_INCLINATION_DEG", "SIGMA_REUSE_TOLERANCE", "HeadingFigures", "PartialResult",
-           "azimuth_coverage", "azimuth_sector", "azimuth_sectors",
-           "heading_figures", "partial_fit", "sphere_radius", "tilt_seen_deg"]
+__all__ = ["AZIMUTH_SECTORS", "DEFAULT_INCLINATION_DEG", "NEAR_LEVEL_NORM_REL_STD", "NEAR_LEVEL_TILT_DEG", "RING_AXIS_MAX_DEG",
+           "RING_FLAT", "SIGMA_REUSE_TOLERANCE", "HeadingFigures", "PartialResult", "azimuth_coverage", "azimuth_sector",
+           "azimuth_sectors", "heading_figures", "partial_fit", "ring_centre", "ring_tilt_deg", "sphere_radius",
+           "tilt_seen_deg"]
 
 Array = NDArray[np.float64]
 
@@ -84,6 +94,14 @@ SYM_NAMES = parameter_names("sym", scale_free=False)
 NORM_REL_STD = 0.05
 """Relative std of a field norm estimated from partial data (the sphere through a band; 3-15 % off on
 the independent generator's ground robot at 60 s, within 5 % at 300 s)."""
+NEAR_LEVEL_TILT_DEG = 2.5
+"""A ring whose readings leave its plane by at most this tilt (``ring_tilt_deg``) is near-level: without a gyro
+the fit holds its plane level (``fitting_prior.fit_with_prior(level=True)``, ``model.fitting_level``). To become
+a ``PipelineConfig`` option (``near_level_tilt_deg``; 0 turns the level term off)."""
+NEAR_LEVEL_NORM_REL_STD = 0.3
+"""Relative std of a field norm estimated from a near-level ring: the sphere through a flat ring is barely
+determined (the independent generator's car at +-0.2 deg: 25-28 uT for 48). (Its prior at the middle of the
+unit's plausible range instead, 37 uT, made a tuning seed's fit settle off the ring: not used.)"""
 SIGMA_REUSE_TOLERANCE = 0.3
 """A previous fit's noise is kept when the residuals at the new solution agree with it within this share."""
 DEFAULT_INCLINATION_DEG = 60.0
@@ -133,6 +151,9 @@ class PartialResult:
             may take it as given (``partial_fit(sigma=...)``).
         gyro_explained: with gyro blocks, the share of the field's turning the gyro accounted for (nan: none).
         gyro_used: the gyro was part of the fit (it accounted for at least ``fitting_gyro.MIN_EXPLAINED``).
+        gyro_frame: the axis order or signs of the rates that would explain the field's turning far better
+            (``fitting_prior.PriorFit.gyro_frame``, e.g. ``"(x, y, -z)"``); "" when none.
+        level: the fit held the ring's plane level (a near-level ring without a usable gyro).
     """
 
     calibration: Calibration | None
@@ -148,6 +169,8 @@ class PartialResult:
     sigma: float = math.nan
     gyro_explained: float = math.nan
     gyro_used: bool = False
+    gyro_frame: str = ""
+    level: bool = False
 
 
 def sphere_radius(points: Array) -> float:
@@ -157,6 +180,17 @@ def sphere_radius(points: Array) -> float:
     c = sol[:3]
     r2 = float(sol[3] + c @ c)
     return math.sqrt(r2) if math.isfinite(r2) and r2 > 0 else math.nan
+
+
+def ring_tilt_deg(raw: Array) -> float:
+    """How far raw readings leave the plane of their ring, as a tilt (degrees): ``atan(sqrt(2) s_3 / sqrt(s_1 s_2))``
+    of their principal spreads ``s_1 >= s_2 >= s_3``, about twice the tilt's standard deviation on a ring (the
+    independent generator at 60 deg inclination: 1.1-1.3 for a car whose tilt varies by +-1.5 deg, 3.2-3.3 for a
+    ground robot's +-5 deg); from the readings alone, before any fit. Inf for fewer than 4 readings."""
+    if len(raw) < 4:
+        return math.inf
+    sv = np.linalg.svd(raw - raw.mean(axis=0), compute_uv=False)
+    return math.degrees(math.atan2(math.sqrt(2.0) * sv[2], math.sqrt(sv[0] * sv[1])))
 
 
 def tilt_seen_deg(cal: Calibration, raw: Array) -> float:
@@ -171,10 +205,37 @@ AZIMUTH_SECTORS = 36
 """Azimuth sectors (about the body z axis) of ``azimuth_coverage``."""
 
 
-def azimuth_sectors(cal: Calibration, raw: Array) -> Array:
-    """The azimuth sector (0 .. ``AZIMUTH_SECTORS - 1``) of each calibrated reading (see ``azimuth_sector``)."""
+RING_FLAT = 0.25
+"""``ring_centre``: calibrated readings whose thickness (smallest principal spread) is at most this share of
+their width (the middle one) form a ring ..."""
+RING_AXIS_MAX_DEG = 30.0
+"""... when its axis lies within this angle of the body z axis (a sensor waved in a cone about another axis
+traces a ring too, about that axis: not a vehicle's turns)."""
+
+
+def ring_centre(h: Array) -> tuple[float, float]:
+    """The centre (x, y) of the ring that calibrated readings ``h`` (N, 3) trace about the body z axis (a circle
+    through their horizontal parts, linear least squares); (0, 0) when they are no flat ring about z (a band,
+    a tumble, a cone about another axis) or the circle is degenerate. A calibration whose offset misses the
+    ring's centre (a wrong vertical offset leaking through a cross term) still sees the azimuths the field
+    actually turned through: about this centre, not about the origin."""
+    if len(h) < 4:
+        return 0.0, 0.0
+    _, sv, vt = np.linalg.svd(h - h.mean(axis=0), full_matrices=False)
+    if not (sv[2] <= RING_FLAT * sv[1] and abs(vt[2, 2]) >= math.cos(math.radians(RING_AXIS_MAX_DEG))):
+        return 0.0, 0.0
+    a = np.c_[2.0 * h[:, :2], np.ones(len(h))]
+    sol, *_ = np.linalg.lstsq(a, (h[:, :2] ** 2).sum(axis=1), rcond=None)
+    return (float(sol[0]), float(sol[1])) if np.all(np.isfinite(sol)) else (0.0, 0.0)
+
+
+def azimuth_sectors(cal: Calibration, raw: Array, centre: tuple[float, float] | None = None) -> Array:
+    """The azimuth sector (0 .. ``AZIMUTH_SECTORS - 1``) of each calibrated reading about ``centre`` (default:
+    ``ring_centre`` of the readings; see ``azimuth_sector``)."""
     h = cal.apply(raw)
-    return np.floor((np.arctan2(h[:, 1], h[:, 0]) + math.pi) / (2.0 * math.pi) * AZIMUTH_SECTORS).astype(int) % AZIMUTH_SECTORS
+    cx, cy = ring_centre(h) if centre is None else centre
+    az = np.arctan2(h[:, 1] - cy, h[:, 0] - cx)
+    return np.floor((az + math.pi) / (2.0 * math.pi) * AZIMUTH_SECTORS).astype(int) % AZIMUTH_SECTORS
 
 
 def azimuth_sector(hx: float, hy: float) -> int:
@@ -184,7 +245,8 @@ def azimuth_sector(hx: float, hy: float) -> int:
 
 
 def azimuth_coverage(cal: Calibration, raw: Array) -> float:
-    """Share of the ``AZIMUTH_SECTORS`` azimuth sectors (about the body z axis) that the calibrated field visits."""
+    """Share of the ``AZIMUTH_SECTORS`` azimuth sectors (about the body z axis, about the ring's centre:
+    ``ring_centre``) that the calibrated field visits."""
     return len(np.unique(azimuth_sectors(cal, raw))) / AZIMUTH_SECTORS
 
 
@@ -216,7 +278,7 @@ def partial_fit(series: Array, prior: Calibration | None, cfg: PipelineConfig, *
                 current: Calibration | None, stamp: float, sensor: str,
                 current_heading: float | None = None, sigma: float | None = None, max_iter: int = 200,
                 start: Calibration | None = None, sigma_tolerance: float = SIGMA_REUSE_TOLERANCE,
-                gyro: GyroBlocks | None = None) -> PartialResult:
+                gyro: GyroBlocks | None = None, level_ok: bool = True) -> PartialResult:
     """The MAP fit of ``series`` (time-ordered raw samples) from ``prior`` and its verdict (module docstring).
 
     ``sigma``: the residual noise of the previous fit on the same kind of data, taken as given (one solve
@@ -225,12 +287,17 @@ def partial_fit(series: Array, prior: Calibration | None, cfg: PipelineConfig, *
     per solve (an early fit's start that needs more is in a flat, wrong valley: another start wins).
     ``start``: the previous fit on the same series, the one start of the MAP fit (``fit_with_prior``).
     ``spread``: when ``series`` holds block means, each block's spread (``fit_with_prior(spread=...)``).
-    ``gyro``: blocks of the raw samples with their rates (``fit_with_prior(gyro=...)``)."""
+    ``gyro``: blocks of the raw samples with their rates (``fit_with_prior(gyro=...)``). ``level_ok``: a near-level
+    ring without gyro blocks may be held level (false while a gyro's rates arrive but fill too few blocks yet:
+    the gyro, not the assumption, should decide; a mounting tilt makes the assumption publish 5-8 deg)."""
     kind = "previous" if prior is not None else "broad"
     try:
         if prior is not None and (prior.covariance is None or tuple(prior.parameter_names) != SYM_NAMES):
             prior = None
             kind = "broad"
+        # a near-level ring without a usable gyro: the level term (model.fitting_level), from every default start
+        # (a previous solution may sit in the flat ring's valley of a large norm and a nearly vertical field)
+        level = level_ok and sensor == "mag" and ring_tilt_deg(series) <= NEAR_LEVEL_TILT_DEG
         norm = cfg.reference_norm or (prior.norm if prior is not None else sphere_radius(series))
         if not (math.isfinite(norm) and norm > 0):
             return PartialResult(None, (), SYM_NAMES, kind, math.nan, math.inf, None, "no field norm from the data")
@@ -240,11 +307,12 @@ def partial_fit(series: Array, prior: Calibration | None, cfg: PipelineConfig, *
         else:
             inflate = cfg.prior_inflate
         # an estimated norm is a tenth parameter with its own uncertainty (module docstring)
-        norm_std = NORM_REL_STD if (sensor == "mag" and not cfg.reference_norm and kind == "broad") else 0.0
+        norm_std = (NEAR_LEVEL_NORM_REL_STD if level else NORM_REL_STD) if (
+            sensor == "mag" and not cfg.reference_norm and kind == "broad") else 0.0
         for noise in (sigma, None) if sigma is not None else (None,):
             pf = fit_with_prior(series, prior, inflate=inflate, stamp=stamp, time_ordered=True, norm_rel_std=norm_std,
-                                sigma=noise, max_iter=max_iter, start=start, spread=spread, gyro=gyro,
-                                gyro_scale_std=cfg.gyro_scale_std)
+                                sigma=noise, max_iter=max_iter, start=None if level else start, spread=spread, gyro=gyro,
+                                gyro_scale_std=cfg.gyro_scale_std, level=level)
             if noise is None or abs(pf.residual_sigma / noise - 1.0) <= sigma_tolerance:
                 break  # the given noise fits the residuals (else: again with the noise estimated)
         cal = pf.calibration
@@ -260,14 +328,15 @@ def partial_fit(series: Array, prior: Calibration | None, cfg: PipelineConfig, *
             return PartialResult(cal, pf.updated, pf.from_prior, kind, tilt, math.inf, None,
                                  f"partial fit: the data are tilted up to {tilt:.0f} deg > {cfg.partial_max_tilt_deg:g} "
                                  "deg, not a ring or band: the full path decides", sigma=pf.residual_sigma,
-                                 gyro_explained=pf.gyro_explained, gyro_used=pf.gyro_used)
+                                 gyro_explained=pf.gyro_explained, gyro_used=pf.gyro_used, gyro_frame=pf.gyro_frame,
+                                 level=pf.level)
         azimuth = azimuth_coverage(cal, series)
         if not rich and not azimuth >= cfg.partial_min_azimuth:
             return PartialResult(cal, pf.updated, pf.from_prior, kind, tilt, math.inf, None,
                                  f"partial fit: the field turned through {100 * azimuth:.0f} % of the azimuths about the "
                                  f"body z axis < {100 * cfg.partial_min_azimuth:.0f} %: not a ground robot's turns",
                                  azimuth=azimuth, sigma=pf.residual_sigma, gyro_explained=pf.gyro_explained,
-                                 gyro_used=pf.gyro_used)
+                                 gyro_used=pf.gyro_used, gyro_frame=pf.gyro_frame, level=pf.level)
         inc = _inclination(cfg, cal, None if rich else series)  # "z up on average" holds for a ring, not a tumble
         figs = _figures(cal, inc)
         seen = figs.tilt30_deg if rich else heading_p95(cal, tilt_deg=tilt, inclination=inc)
@@ -277,7 +346,8 @@ def partial_fit(series: Array, prior: Calibration | None, cfg: PipelineConfig, *
     reason, over = "", None
     if not seen <= limit:
         where = "at 30 deg tilt" if rich else f"at the tilt seen ({tilt:.1f} deg)"
-        reason = f"partial fit: predicted heading error {seen:.2f} deg p95 {where} > {limit:g} deg"
+        reason = (f"partial fit: predicted heading error {seen:.2f} deg p95 {where} > {limit:g} deg" if math.isfinite(seen)
+                  else f"partial fit: predicted heading error {where} not determined (no finite covariance)")
         over = limit
     elif current_heading is not None and not seen < current_heading:
         reason = (f"partial refit: predicted heading error {seen:.2f} deg p95 not below the current "
@@ -290,4 +360,4 @@ def partial_fit(series: Array, prior: Calibration | None, cfg: PipelineConfig, *
         if rails:
             reason = f"partial fit: {rails}"
     return PartialResult(cal, pf.updated, pf.from_prior, kind, tilt, seen, figs, reason, over, azimuth, pf.residual_sigma,
-                         pf.gyro_explained, pf.gyro_used)
+                         pf.gyro_explained, pf.gyro_used, pf.gyro_frame, pf.level)

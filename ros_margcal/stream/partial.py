@@ -46,6 +46,7 @@ from numpy.typing import NDArray
 from ..model.calibration import Calibration
 from ..model.fitting_geometric import block_means
 from ..model.fitting_gyro import MIN_EXPLAINED, gyro_blocks
+from ..model.fitting_level import LEVEL_TILT_STD_DEG
 from .config import PipelineConfig
 from .observable import (
     AZIMUTH_SECTORS,
@@ -57,11 +58,21 @@ from .observable import (
     azimuth_sectors,
     heading_figures,
     partial_fit,
+    ring_centre,
 )
 
 __all__ = ["PartialCalibration"]
 
 Array = NDArray[np.float64]
+
+
+def _level_note(res: PartialResult) -> str:
+    """What a fit that held a near-level ring's plane level adds to the messages (``model.fitting_level``)."""
+    if not res.level:
+        return ""
+    return (f"; near-level ring: its plane taken as level (the sensor's z axis vertical on average within "
+            f"{LEVEL_TILT_STD_DEG:g} deg; a mounting tilt is not seen): the level heading is the data's, the tilted "
+            "one the prior's")
 
 
 class PartialCalibration:
@@ -117,11 +128,12 @@ class PartialCalibration:
         self._early_sigma: float | None = None  # the residual noise of the last early fit
         self._partial_sigma: float | None = None  # the residual noise of the last fit on the series ...
         self._partial_start: Calibration | None = None  # ... and its solution, the next one's start
-        self._az_watch: tuple[Any, ...] | None = None  # after an azimuth refusal: its W rows x, y and offset
+        self._az_watch: tuple[Any, ...] | None = None  # after an azimuth refusal: its W rows x, y, offset, ring centre
         self._az_seen: set[int] = set()  # ... and the sectors the series visited under it
         self._gyro_buf: deque[tuple[float, ...]] = deque(maxlen=cfg.gyro_samples)  # t, x, y, z, rate (nan: none)
         self._gyro_share = math.nan  # the last series fit's share of the field's turning the gyro accounted for
         self._gyro_short = False  # ... or: it had rates, but too few complete blocks of them
+        self._gyro_frame = ""  # ... or: the rates re-ordered or with an axis negated explained it far better
 
     def _cadence(self) -> tuple[int, float]:
         """(samples, seconds) between evaluations, never fewer than ``refit_every // 2`` samples (the
@@ -146,6 +158,7 @@ class PartialCalibration:
             self._early_sigma = res.sigma
         if res is not None and not job.get("early") and res.calibration is not None:
             self._gyro_share = res.gyro_explained
+            self._gyro_frame = res.gyro_frame
             self._gyro_short = bool(job.get("gyro_short"))
         if res is None or job.get("early") or job.get("prior") is not self._prior:
             return
@@ -177,16 +190,17 @@ class PartialCalibration:
         if cal is None or series is None or not len(series):
             return
         w, b = np.asarray(cal.matrix, dtype=np.float64), np.asarray(cal.offset, dtype=np.float64)
-        self._az_seen = set(azimuth_sectors(cal, series).tolist())
-        self._az_watch = (*w[0].tolist(), *w[1].tolist(), *b.tolist())
+        centre = ring_centre(cal.apply(series))  # the azimuths about the ring's centre, as the fit judged them
+        self._az_seen = set(azimuth_sectors(cal, series, centre).tolist())
+        self._az_watch = (*w[0].tolist(), *w[1].tolist(), *b.tolist(), *centre)
 
     def _watch_point(self, x: float, y: float, z: float) -> None:
         """One new series point under the azimuth watch: once the sectors seen reach ``partial_min_azimuth``,
         the next partial fit is due at once."""
         assert self._az_watch is not None
-        a, b, c, d, e, f, bx, by, bz = self._az_watch
+        a, b, c, d, e, f, bx, by, bz, cx, cy = self._az_watch
         dx, dy, dz = x - bx, y - by, z - bz
-        self._az_seen.add(azimuth_sector(a * dx + b * dy + c * dz, d * dx + e * dy + f * dz))
+        self._az_seen.add(azimuth_sector(a * dx + b * dy + c * dz - cx, d * dx + e * dy + f * dz - cy))
         if len(self._az_seen) >= self.config.partial_min_azimuth * AZIMUTH_SECTORS:
             self._az_watch = None
             self._partial_growth = 0.0
@@ -259,7 +273,7 @@ class PartialCalibration:
             series, spread = block_means(self._recent_v, -(-len(self._recent_v) // self.EARLY_POINTS))
         rows = [] if early or not self._gyro_buf else list(self._gyro_buf)  # a copy of references: cheap
         return {**job, "partial": True, "series": series, "spread": spread, "prior": self._prior, "early": early,
-                "gyro_rows": rows,
+                "gyro_rows": rows, "gyro_seen": bool(self._gyro_buf),
                 "sigma": self._early_sigma if early else self._partial_sigma,
                 "start": None if (early or self._changed) else self._partial_start,  # a sensor change: every start
                 "current_heading": None if cur is None else cur.heading_seen_deg}
@@ -271,7 +285,8 @@ class PartialCalibration:
                           current=job["current"],
                           stamp=job["t"], sensor=self.sensor, current_heading=job["current_heading"], sigma=job["sigma"],
                           max_iter=self.EARLY_MAX_ITER if job["early"] else job["config"].max_iter, start=job["start"],
-                          sigma_tolerance=math.inf if job["early"] else SIGMA_REUSE_TOLERANCE)
+                          sigma_tolerance=math.inf if job["early"] else SIGMA_REUSE_TOLERANCE,
+                          level_ok=gyro is not None or not job["gyro_seen"])
         job["result"] = res
         if res.reason or res.calibration is None:
             return None, res.reason or "partial fit failed"
@@ -292,7 +307,7 @@ class PartialCalibration:
             self._figures = res.figures
             return (f"; partial: updated {','.join(res.updated) or 'none'}, from the {res.prior_kind} prior "
                     f"{','.join(res.from_prior) or 'none'}; heading p95 {res.heading_seen_deg:.2f} deg at the tilt seen "
-                    f"({res.tilt_seen_deg:.1f} deg)")
+                    f"({res.tilt_seen_deg:.1f} deg){_level_note(res)}")
         self._partial, self._partial_note = None, ""
         got = job.get("figures")
         if got is not None:
@@ -313,13 +328,17 @@ class PartialCalibration:
         out = ""
         p = self._partial
         if p is not None and self._cal is not None:
-            out += f"; partial: updated {','.join(p.updated)}, from prior {','.join(p.from_prior) or 'none'}"
+            out += f"; partial: updated {','.join(p.updated)}, from prior {','.join(p.from_prior) or 'none'}{_level_note(p)}"
         f = self._figures
         if f is not None and self._cal is not None:
             out += (f"; heading p95 {f.level_deg:.2f} deg level, {f.tilt30_deg:.2f} deg at 30 deg tilt (predicted 95 % bound; "
                     f"typical {f.level_typical_deg:.2f} / {f.tilt30_typical_deg:.2f} deg)")
         g = self._gyro_share if self._gyro_applies() else math.nan
-        if math.isfinite(g):
+        if math.isfinite(g) and self._gyro_frame:
+            out += (f"; gyro not used: the rate accounts for {100 * g:.0f} % of the field's turning as it comes, far "
+                    f"more taken as {self._gyro_frame} of the IMU's axes: IMU frame flipped or rotated against the "
+                    "magnetometer?")
+        elif math.isfinite(g):
             out += (f"; gyro-aided: the rate accounts for {100 * g:.1f} % of the field's turning" if g >= MIN_EXPLAINED
                     else f"; gyro not used: the rate accounts for {100 * g:.0f} % of the field's turning < "
                          f"{100 * MIN_EXPLAINED:.0f} % (are the IMU and magnetometer in one frame, in step?)")

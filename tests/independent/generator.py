@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 G0 = 9.80665
-MOTIONS = ("tumble", "ground", "hemisphere", "band", "static", "rest_and_move")
+MOTIONS = ("tumble", "ground", "hemisphere", "band", "static", "rest_and_move", "car")
 EFFECTS = ("none", "soft_iron", "nonlinearity", "temperature", "saturation", "quantization",
            "bias_drift", "misalignment", "hard_iron_jump")
 DEFAULT_MAGNITUDE = {"none": 0.0, "soft_iron": 0.1, "nonlinearity": 0.02, "temperature": 0.002,
@@ -131,7 +131,55 @@ def _random_quat(rng) -> np.ndarray:
     return q / np.linalg.norm(q)
 
 
-def _motion(kind, t, rng, tilt_deg, band_deg, rest_s, move_s):
+def _second_order(u: np.ndarray, dt: np.ndarray, f_hz: float, zeta: float) -> np.ndarray:
+    """Response of a unit-gain second-order system (natural frequency f_hz, damping zeta) to input u, semi-implicit Euler."""
+    wn, y, dy = 2 * np.pi * f_hz, np.zeros(len(u)), 0.0
+    for k in range(1, len(u)):
+        dy += dt[k - 1] * (wn * wn * (u[k - 1] - y[k - 1]) - 2 * zeta * wn * dy)
+        y[k] = y[k - 1] + dt[k - 1] * dy
+    return y
+
+
+def _car(t, rng, tilt_deg, mount_deg=None):
+    """A car's (roll, pitch, yaw) in radians: straights and full circles (left or right), speed 6-14 m/s;
+    roll from the lateral acceleration v * yaw rate through a suspension (1.2-1.6 Hz, damping 0.5-0.7,
+    0.3-0.5 deg per m/s^2), pitch from the longitudinal one (braking dives the nose) through the same kind of
+    suspension plus a slow road grade; road vibration; a mounting tilt (roll -4..-3 deg, pitch +-1 deg, or
+    mount_deg = (roll, pitch) in degrees). The varying part is scaled down, when larger, to at most tilt_deg
+    on each axis. Also the world acceleration."""
+    n, dt = len(t), np.diff(t)
+    rate, tc, turning = np.zeros(n), float(rng.uniform(2.0, 6.0)), True
+    while tc <= t[-1]:
+        if turning:
+            r = rng.choice([-1.0, 1.0]) * rng.uniform(0.2, 0.45)
+            dur = rng.choice([1.0, 1.0, 2.0]) * 2 * np.pi / abs(r)  # one or two full circles
+        else:
+            r, dur = 0.0, rng.uniform(4.0, 15.0)
+        rate[(t >= tc) & (t < tc + dur)] = r
+        tc, turning = tc + dur, not turning
+    for k in range(1, n):  # steering lag, tau = 0.8 s
+        rate[k] = rate[k - 1] + (1 - np.exp(-dt[k - 1] / 0.8)) * (rate[k] - rate[k - 1])
+    speed = 10.0 + 4.0 * np.clip(_smooth(rng, t, 0.005, 0.03, dims=1)[:, 0], -1, 1) - 3.0 * np.abs(rate) / 0.45
+    a_lon = np.gradient(speed, t)
+    a_lat = speed * rate
+    f_r, f_p = rng.uniform(1.2, 1.6, 2)
+    z_r, z_p = rng.uniform(0.5, 0.7, 2)
+    k_r, k_p = np.deg2rad(rng.uniform(0.3, 0.5, 2))
+    roll = _second_order(k_r * a_lat, dt, f_r, z_r)  # body rolls out of the turn
+    pitch = _second_order(k_p * a_lon, dt, f_p, z_p) + np.deg2rad(0.6) * _smooth(rng, t, 0.002, 0.01, dims=1)[:, 0]
+    vib = np.deg2rad(0.05) * _smooth(rng, t, 2.0, 8.0, dims=2)
+    var = np.c_[roll, pitch] + vib
+    peak = np.max(np.abs(var), axis=0)
+    var = var * np.minimum(1.0, np.deg2rad(tilt_deg) / np.maximum(peak, 1e-12))
+    mount = np.deg2rad([rng.uniform(-4.0, -3.0), rng.uniform(-1.0, 1.0)])
+    if mount_deg is not None:
+        mount = np.deg2rad(np.asarray(mount_deg, float))
+    yaw = rng.uniform(-np.pi, np.pi) + _cumint(rate, dt)
+    acc = np.c_[a_lon * np.cos(yaw) - a_lat * np.sin(yaw), a_lon * np.sin(yaw) + a_lat * np.cos(yaw), np.zeros(n)]
+    return var[:, 0] + mount[0], var[:, 1] + mount[1], yaw, acc
+
+
+def _motion(kind, t, rng, tilt_deg, band_deg, rest_s, move_s, mount_deg=None):
     """Attitude q (N,4), body rates (N,3), world linear acceleration (N,3), still mask or None."""
     n, dt = len(t), np.diff(t)
     acc, still = np.zeros((n, 3)), None
@@ -167,6 +215,9 @@ def _motion(kind, t, rng, tilt_deg, band_deg, rest_s, move_s):
         rp = _smooth(rng, t, 0.05, 0.8, dims=2)
         rp = np.deg2rad(tilt_deg) * rp / np.max(np.abs(rp), axis=0)
         att = quat_from_rpy(rp[:, 0], rp[:, 1], yaw)
+    elif kind == "car":
+        roll, pitch, yaw, acc = _car(t, rng, tilt_deg, mount_deg)
+        att = quat_from_rpy(roll, pitch, yaw)
     elif kind in ("hemisphere", "band"):
         bound = np.deg2rad(80.0 if kind == "hemisphere" else band_deg)
         theta = rng.uniform(0, 2 * np.pi, 2) + _cumint(0.3 + 0.15 * _smooth(rng, t, 0.02, 0.2, dims=2), dt)
@@ -191,7 +242,8 @@ def generate(sensor="mag", motion="tumble", duration_s=60.0, rate_hz=50.0, seed=
              noise=None, colored_noise=None, noise_tau_s=5.0,
              effect="none", magnitude=None, t_jump=None, unit=None, lsb=None,
              field_uT=48.0, inclination_deg=60.0, declination_deg=3.0, jitter_s=0.0,
-             with_gyro=True, with_temp=False, gyro_noise=0.003, gyro_bias=0.005, gyro_scale=0.0) -> dict:
+             with_gyro=True, with_temp=False, gyro_noise=0.003, gyro_bias=0.005, gyro_scale=0.0,
+             mount_deg=None) -> dict:
     """Simulate one recording; returns {"t","xyz","gyro","temp","truth","meta"} (numpy arrays).
 
     sensor "mag" (field from intensity/inclination/declination, ENU) or "accel" (specific force,
@@ -201,7 +253,9 @@ def generate(sensor="mag", motion="tumble", duration_s=60.0, rate_hz=50.0, seed=
     SI (default 0.1 µT / 0.02 m/s²); colored_noise: AR(1) std in SI (default noise/2), correlation
     time noise_tau_s.  magnitude: effect size (see module docstring; None -> DEFAULT_MAGNITUDE).
     rest_and_move: alternating still (rest_s) and moving (move_s) periods, linear acceleration when
-    moving.  ground: yaw segments (turn / straight), |roll|, |pitch| <= tilt_deg.  band: |roll|,
+    moving.  ground: yaw segments (turn / straight), |roll|, |pitch| <= tilt_deg.  car: straights and full
+    circles, roll and pitch through a suspension (``_car``), varying by at most tilt_deg about a mounting tilt
+    (mount_deg = (roll, pitch) degrees; None: drawn, roll -4..-3, pitch +-1; (0, 0): a near-level ring).  band: |roll|,
     |pitch| <= band_deg.  hemisphere: |roll|, |pitch| <= 80° (body z up).  jitter_s: time-stamp jitter.
     unit: "T" | "uT" | "counts" for mag, "m/s2" | "counts" for accel (counts: raw = round(SI / lsb)).
     gyro: body rate + constant bias N(0, gyro_bias) + white N(0, gyro_noise), rad/s; gyro_scale: per-axis
@@ -226,7 +280,7 @@ def generate(sensor="mag", motion="tumble", duration_s=60.0, rate_hz=50.0, seed=
         t = t + np.clip(r_time.normal(0, jitter_s, n), -0.45 / rate_hz, 0.45 / rate_hz)
         t[0] = 0.0
     dt = np.diff(t)
-    q, omega, acc, still = _motion(motion, t, r_mot, tilt_deg, band_deg, rest_s, move_s)
+    q, omega, acc, still = _motion(motion, t, r_mot, tilt_deg, band_deg, rest_s, move_s, mount_deg)
     rot = quat_to_matrix(q)
 
     if sensor == "mag":
@@ -338,7 +392,8 @@ def generate(sensor="mag", motion="tumble", duration_s=60.0, rate_hz=50.0, seed=
             "effect_params": params, "noise": {"white": white, "colored": colored, "tau_s": noise_tau_s},
             "field_uT": field_uT, "inclination_deg": inclination_deg, "declination_deg": declination_deg,
             "g": G0, "tilt_deg": tilt_deg, "band_deg": band_deg, "rest_s": rest_s, "move_s": move_s,
-            "soft_iron": soft_iron, "jitter_s": jitter_s, "gyro_scale": gyro_scale}
+            "soft_iron": soft_iron, "jitter_s": jitter_s, "gyro_scale": gyro_scale,
+            "mount_deg": mount_deg}
     return {"t": t, "xyz": xyz, "gyro": gyro, "temp": temp, "truth": truth, "meta": meta}
 
 
