@@ -109,6 +109,8 @@ _FLOAT_PARAMS: dict[str, tuple[float, float, str]] = {
                                "(default: the unit's); 0.0 = none"),
     "max_heading_p95_deg": (0.01, 180.0, "partial calibration: largest predicted heading p95 at the tilt seen, deg"),
     "early_heading_p95_deg": (0.01, 180.0, "early fit on rich motion: largest predicted heading p95 at 30 deg tilt, deg"),
+    "near_level_tilt_deg": (0.0, 90.0, "magnetometer: a ring this flat is held level without a gyro (a car); 0.0 = never "
+                                        "(a sensor mounted tilted)"),
 }
 _BOOL_PARAMS: dict[str, str] = {
     "partial_fit": "fit what the motion makes observable (a ring or band) when the full validator refuses",

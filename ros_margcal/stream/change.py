@@ -5,15 +5,15 @@ While calibrated, each sample's relative norm error under the calibration is kep
 ``change_threshold`` for ``change_min_duration_s``, a change is suspected (a hard-iron jump, a drift).
 It is declared only against the no-change hypothesis: one calibration refitted on the buffer and the
 whole recent window (``_no_change``); when that explains both within the tolerance, it is installed
-instead. When the buffered samples from before the onset in the same directions (a rest pose returned to)
-were missed by the calibration as much (``_missed_before``), the calibration was poor there, not the
-sensor changed: no change is declared, the refit tolerance is half ``change_threshold`` (a first
-calibration from part of the sphere that missed the start pose by 6 %, where one refit on everything
-leaves 0.65 %), and without a passing refit the calibration is kept and a refit is due. A declared change rebuilds the buffer from the samples since its onset, and the next validated
-fit describes the new sensor. A change can pass: a bad stretch of samples (a sensor reset that reads a
-few counts, a magnet held near it for a while) is a change while it lasts, and afterwards the old
-calibration explains the samples again. When, before a new calibration, the median over the last
-``change_window`` samples under the old calibration has stayed within half ``change_threshold`` (a margin
+instead. When the buffered samples from before the onset in the same directions (a rest pose returned to) were
+missed by the calibration as much (``_missed_before``), the calibration was poor there, not the sensor
+changed: no change is declared, the refit tolerance is half ``change_threshold`` (a first calibration from
+part of the sphere that missed the start pose by 6 %, where one refit on everything leaves 0.65 %), and
+without a passing refit the calibration is kept and a refit is due. A declared change rebuilds the buffer from
+the samples since its onset, and the next validated fit describes the new sensor. A change can pass: a bad
+stretch of samples (a sensor reset that reads a few counts, a magnet held near it for a while) is a change
+while it lasts, and afterwards the old calibration explains the samples again. When, before a new calibration,
+the median over the last ``change_window`` samples under the old calibration has stayed within half ``change_threshold`` (a margin
 against a change that hovers at the threshold) for ``change_min_duration_s``, the change is withdrawn
 (``_check_return``): the old calibration is current again, the buffer of before the change comes back with
 the samples since that it explains. Without this the buffer kept the bad stretch and every refit failed
@@ -351,7 +351,8 @@ class ChangeDetection:
             tol = max(tol, 0.5 * cfg.change_threshold)
         text = (f"{old_text}, {pct(old_buf)} on the buffer{before}; one calibration refitted on the {len(buf)} buffered "
                 f"and {len(window)} recent samples: median {pct(single_post)} since the onset, {pct(single_buf)} on the "
-                f"buffer (tolerance {pct(tol)}: {'half the change threshold' if before else 'twice the old calibration’s on the buffer'})")
+                f"buffer (tolerance {pct(tol)}: "
+                f"{'half the change threshold' if before else 'twice the old calibration’s on the buffer'})")
         if reason:
             return None, f"{text}, refused: {reason}"
         if single_post <= tol and single_buf <= tol:

@@ -132,6 +132,7 @@ class PipelineConfig:
     partial_period_s: float = 0.2  # one sample (their mean) of the partial fit's time series per this many seconds ...
     partial_samples: int = 1500  # ... the last this many (300 s at the defaults)
     partial_max_tilt_deg: float = 45.0  # a partial fit only for a ring or band: data tilted at most this much
+    near_level_tilt_deg: float = 2.5  # a ring this flat, without a gyro, is held level (stream/observable.py); 0: never
     gyro_aided: bool = True  # magnetometer: a rate pushed with a sample joins the partial fit (model/fitting_gyro.py) ...
     gyro_samples: int = 15000  # ... the last this many samples with their rates (300 s at 50 Hz) ...
     gyro_block_s: float = 1.0  # ... in blocks of this length (the longer, the larger the turn against the noise)
@@ -335,6 +336,7 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "partial_samples": FieldSpec(int, 10, 100_000),
     "prior_inflate": _real(1.0, 1e6),
     "partial_max_tilt_deg": _real(0.0, 90.0),
+    "near_level_tilt_deg": _real(0.0, 90.0),
     "partial_min_azimuth": _ratio(1.0),
     "gyro_aided": FieldSpec(bool),
     "gyro_samples": FieldSpec(int, 100, 1_000_000),

@@ -36,13 +36,15 @@ misses that centre still sees the turns the field made): the heading figures ass
 waved about one pose) would be judged at the wrong attitudes. These cheap checks come first: a fit they
 refuse costs no norm-uncertainty fit and no heading figures.
 
-**Near-level rings.** A ring whose raw readings leave its plane by at most ``NEAR_LEVEL_TILT_DEG``
+**Near-level rings.** A ring whose raw readings leave its plane by at most ``near_level_tilt_deg``
 (``ring_tilt_deg``: a car, a robot on a floor) leaves the tilt of the calibrated frame to the prior's cross
 terms, and the level heading with it. Without a usable gyro the fit then holds the ring's plane level
 (``fit_with_prior(level=True)``, ``model.fitting_level``: the sensor's z axis vertical on average), from every
 default start, with a wider norm prior (``NEAR_LEVEL_NORM_REL_STD``); the status says so. The level figure is
 then the data's (with the assumption's floor), the ±30° one the prior's (large). A sensor mounted tilted on
-the vehicle is calibrated in the vehicle's level frame, which no magnetometer can tell from its own.
+the vehicle is calibrated in the vehicle's level frame, which no magnetometer can tell from its own (3.5 deg of
+roll: 5-8 deg of heading at level on the independent generator's car): ``near_level_tilt_deg`` 0 turns the
+assumption off for such a mount, and a gyro in the magnetometer's frame makes it unnecessary.
 
 **Early fit on rich motion** (``early_fit``). Before the first calibration, the same MAP fit on richer
 data (a tumble's first seconds, on the recent samples while the series is short) is
@@ -95,9 +97,9 @@ NORM_REL_STD = 0.05
 """Relative std of a field norm estimated from partial data (the sphere through a band; 3-15 % off on
 the independent generator's ground robot at 60 s, within 5 % at 300 s)."""
 NEAR_LEVEL_TILT_DEG = 2.5
-"""A ring whose readings leave its plane by at most this tilt (``ring_tilt_deg``) is near-level: without a gyro
-the fit holds its plane level (``fitting_prior.fit_with_prior(level=True)``, ``model.fitting_level``). To become
-a ``PipelineConfig`` option (``near_level_tilt_deg``; 0 turns the level term off)."""
+"""The default of ``PipelineConfig.near_level_tilt_deg``: a ring whose readings leave its plane by at most this
+tilt (``ring_tilt_deg``) is near-level: without a gyro the fit holds its plane level
+(``fitting_prior.fit_with_prior(level=True)``, ``model.fitting_level``); 0 turns the level term off."""
 NEAR_LEVEL_NORM_REL_STD = 0.3
 """Relative std of a field norm estimated from a near-level ring: the sphere through a flat ring is barely
 determined (the independent generator's car at +-0.2 deg: 25-28 uT for 48). (Its prior at the middle of the
@@ -297,7 +299,7 @@ def partial_fit(series: Array, prior: Calibration | None, cfg: PipelineConfig, *
             kind = "broad"
         # a near-level ring without a usable gyro: the level term (model.fitting_level), from every default start
         # (a previous solution may sit in the flat ring's valley of a large norm and a nearly vertical field)
-        level = level_ok and sensor == "mag" and ring_tilt_deg(series) <= NEAR_LEVEL_TILT_DEG
+        level = level_ok and sensor == "mag" and ring_tilt_deg(series) <= cfg.near_level_tilt_deg
         norm = cfg.reference_norm or (prior.norm if prior is not None else sphere_radius(series))
         if not (math.isfinite(norm) and norm > 0):
             return PartialResult(None, (), SYM_NAMES, kind, math.nan, math.inf, None, "no field norm from the data")

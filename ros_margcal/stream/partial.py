@@ -71,8 +71,8 @@ def _level_note(res: PartialResult) -> str:
     if not res.level:
         return ""
     return (f"; near-level ring: its plane taken as level (the sensor's z axis vertical on average within "
-            f"{LEVEL_TILT_STD_DEG:g} deg; a mounting tilt is not seen): the level heading is the data's, the tilted "
-            "one the prior's")
+            f"{LEVEL_TILT_STD_DEG:g} deg; a mounting tilt is not seen: set near_level_tilt_deg=0 for a tilted mount): the "
+            "level heading is the data's, the tilted one the prior's")
 
 
 class PartialCalibration:

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from conftest import INDEPENDENT
 
-from ros_margcal.stream.calibrator import EventKind, SensorCalibrator
+from ros_margcal.stream.calibrator import EventKind, PipelineConfig, SensorCalibrator
 
 GEN: ModuleType = INDEPENDENT
 
@@ -81,3 +81,23 @@ def test_a_gyro_with_x_and_y_swapped_does_no_harm_on_a_near_level_ring(car: dict
     st = cal.status()
     assert events and _level_p95(car, cal.calibration) <= 1.0, st.message
     assert "(y, x, z)" in st.message or "gyro-aided" in st.message, st.message
+
+
+
+def test_a_tilted_mount_is_said_and_can_be_switched_off() -> None:
+    """A magnetometer mounted 3.5 deg rolled cannot be told from a level one by its readings alone: held level it is
+    calibrated into the car's frame (the status says the assumption and how to turn it off); with
+    ``near_level_tilt_deg=0`` it is not held level and no heading figure it cannot back is published; with the
+    gyro it calibrates in its own frame."""
+    rec = GEN.generate("mag", "car", duration_s=150.0, rate_hz=40.0, seed=7, tilt_deg=1.5, mount_deg=(-3.5, 0.0),
+                       symmetric_soft_iron=True, hard_iron_mag=30e-6)
+    cal, events = _feed(rec)
+    assert events and "near_level_tilt_deg=0" in cal.status().message
+    off = SensorCalibrator("mag", PipelineConfig.for_sensor("mag", near_level_tilt_deg=0.0))
+    published = []
+    for t, v in zip(rec["t"].tolist(), rec["xyz"], strict=True):
+        published += [e.calibration for e in off.push(t, v) if e.kind is EventKind.CALIBRATED]
+    assert "near-level ring" not in off.status().message
+    assert all(_level_p95(rec, c) <= 5.0 for c in published), [_level_p95(rec, c) for c in published]
+    cal, events = _feed(rec, rec["gyro"])
+    assert events and _level_p95(rec, cal.calibration) <= 2.0, cal.status().message

@@ -58,7 +58,7 @@ def _mems(rng: np.random.Generator, noise_g: float = 6e-3) -> tuple[np.ndarray, 
 def _run(cal: SensorCalibrator, t: np.ndarray, raw: np.ndarray) -> float | None:
     """Feed the stream; the time of the first calibration (None if none)."""
     first = None
-    for ti, v in zip(t, raw):
+    for ti, v in zip(t, raw, strict=True):
         cal.push(float(ti), v)
         if first is None and cal.calibration is not None:
             first = float(ti)
@@ -87,7 +87,7 @@ def test_the_gate_learns_but_still_refuses_a_move() -> None:
     """The learnt gate emits nothing during the moves of the MEMS stream: every emitted mean is a pose's."""
     t, raw, truth = _mems(np.random.default_rng(62))
     gate = InactivityGate(learn=True)
-    out = [e for e in (gate.push(ti, v) for ti, v in zip(t, raw)) if e is not None]
+    out = [e for e in (gate.push(ti, v) for ti, v in zip(t, raw, strict=True)) if e is not None]
     assert len(out) >= 14
     norms = np.linalg.norm(truth.apply(np.array(out)), axis=1)
     assert np.abs(norms - 1.0).max() < 5e-3, norms  # a mean over a move would be off by the hand's push
@@ -158,7 +158,7 @@ def test_an_mpu6050_on_a_desk_is_still(real_recording: Callable[[str], Path], na
     """The MPU6050 at rest (4-5e-3 g per axis) is found still by the learning gate, not by Gietzelt's fixed one."""
     rec = read_recording(real_recording(name), sensor="accel")
     learnt, fixed = InactivityGate(learn=True), InactivityGate()
-    for t, v in zip(rec.t, rec.raw):
+    for t, v in zip(rec.t, rec.raw, strict=True):
         learnt.push(t, v)
         fixed.push(t, v)
     assert learnt.counters["emitted"] >= 40
@@ -170,7 +170,7 @@ def test_the_mpu6050_full_sphere_move_is_not_still(real_recording: Callable[[str
     """The MPU6050 turned by hand all through its recording: the learning gate finds nothing still."""
     rec = read_recording(real_recording("sunsided_mpu6050_full_sphere_acc.csv"), sensor="accel")
     gate = InactivityGate(learn=True)
-    for t, v in zip(rec.t, rec.raw):
+    for t, v in zip(rec.t, rec.raw, strict=True):
         gate.push(t, v)
     assert gate.counters["emitted"] == 0
     assert gate.thresholds == (3e-3, 3e-3)  # a move taught it nothing

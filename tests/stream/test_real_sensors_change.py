@@ -43,7 +43,7 @@ def _stream(seed: int, *, local: float = 1.06, jump: float = 0.0) -> tuple[np.nd
 def _run(t: np.ndarray, raw: np.ndarray) -> tuple[SensorCalibrator, list]:
     cal = SensorCalibrator("mag", PipelineConfig.for_sensor("mag", "uT"))
     events = []
-    for ti, v in zip(t, raw):
+    for ti, v in zip(t, raw, strict=True):
         events += cal.push(float(ti), v)
     return cal, events
 
