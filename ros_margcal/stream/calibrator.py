@@ -86,6 +86,8 @@ __all__ = ["DROP_REASONS", "Event", "EventKind", "Level", "PipelineConfig", "Sen
            "default_validator"]
 
 log = logging.getLogger(__name__)
+"""What an Event also says is logged at debug level only: replay's timeline and the node's log print the events
+(each once); warnings are for what no event carries."""
 
 Array = NDArray[np.float64]
 
@@ -307,7 +309,7 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         self._time_base_note = f"stamps restarted {n}x, last at t={t:.2f} s (a {step:+.6g} s jump)"
         msg = (f"new time base: stamps jumped {step:+.6g} s to t={t:.3f} s and went on "
                f"({self.config.new_time_base_after} consistent samples); the calibration and buffer are kept")
-        log.warning("%s: %s", self.sensor, msg)
+        log.debug("%s: %s", self.sensor, msg)
         return [*events, Event(EventKind.TIME_BASE, t, self.sensor, msg)]
 
     def _limits_relearnt(self, t: float) -> None:

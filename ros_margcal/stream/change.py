@@ -245,14 +245,14 @@ class ChangeDetection:
             self.fits_accepted += 1
             self._last_rejection = ""
             msg = f"no sensor change at t={onset:.2f} s: {hypotheses}; recalibrated"
-            log.info("%s: %s", self.sensor, msg)
+            log.debug("%s: %s", self.sensor, msg)
             return [Event(EventKind.CALIBRATED, t, self.sensor, msg, single)]
         if "missed before the onset" in hypotheses:  # the calibration was as poor there before: kept, refit due
             self._suspect_since = None
             self._since_eval = self.config.refit_every
             self._last_eval_t = -float("inf")
             self._last_reason = f"no sensor change at t={onset:.2f} s: {hypotheses}"
-            log.info("%s: %s", self.sensor, self._last_reason)
+            log.debug("%s: %s", self.sensor, self._last_reason)
             return []
         self._changed = True
         self._change_onset = onset
@@ -271,7 +271,7 @@ class ChangeDetection:
         self._predicted = None
         msg = (f"sensor changed at t={onset:.2f} s: median residual {pct(med)} > {pct(cfg.change_threshold)} "
                f"for {t - onset:.1f} s; {hypotheses}; recollecting")
-        log.info("%s: %s", self.sensor, msg)
+        log.debug("%s: %s", self.sensor, msg)
         self._last_reason = msg
         events = [Event(EventKind.CHANGED, t, self.sensor, msg)]
         return events + self._set_state(State.COLLECTING, t)
@@ -309,7 +309,7 @@ class ChangeDetection:
                f"t={back:.2f} s the calibration explains the samples again (median residual {pct(med)} <= {pct(limit)} "
                f"for {t - back:.1f} s); it is kept, with the buffer of before the change and the {int(keep.sum())} "
                "samples since that it explains")
-        log.info("%s: %s", self.sensor, msg)
+        log.debug("%s: %s", self.sensor, msg)
         self._last_reason = msg
         return [*events, Event(EventKind.CALIBRATED, t, self.sensor, msg, cal)]
 

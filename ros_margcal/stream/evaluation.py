@@ -317,7 +317,7 @@ class Evaluation(PartialCalibration):
         n = len(job["fresh"]) if job.get("recentred") else len(job.get("series", job["points"]))
         msg = (f"calibrated from {n} samples: residual {pct(cal.stats.rms_relative)}, "
                f"offset {np.array2string(cal.offset, precision=4)}{job.get('note', '')}{note}")
-        log.info("%s: %s", self.sensor, msg)
+        log.debug("%s: %s", self.sensor, msg)
         return [*self._set_state(State.CALIBRATED, t), Event(EventKind.CALIBRATED, t, self.sensor, msg, cal)]
 
     def _recent_points(self) -> Array:
@@ -330,7 +330,7 @@ class Evaluation(PartialCalibration):
         self.fits_rejected += 1
         self._last_rejection = reason
         self._last_reason = reason
-        log.info("%s: fit rejected: %s", self.sensor, reason)
+        log.debug("%s: fit rejected: %s", self.sensor, reason)
         events = [Event(EventKind.REJECTED, t, self.sensor, f"fit rejected: {reason}")]
         if self._cal is None:
             events += self._set_state(State.REJECTED, t)

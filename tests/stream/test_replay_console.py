@@ -26,7 +26,7 @@ fcntl = pytest.importorskip("fcntl", reason="needs a POSIX pseudo-terminal")
 termios = pytest.importorskip("termios", reason="needs a POSIX pseudo-terminal")
 
 PROGRESS = re.compile(r"replay: *\d+ (msg|messages)|msg/s")
-TEXT = re.compile(r"\d+\.\d\d s  (mag|accel)|INFO ros_margcal|WARNING ros_margcal")
+TEXT = re.compile(r"\d+\.\d\d s  (mag|accel)|(DEBUG|INFO|WARNING) ros_margcal")
 
 
 def render(raw: str) -> list[str]:
@@ -81,11 +81,12 @@ def recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def test_progress_and_timeline_and_log_lines_never_share_a_line(recording: Path, status_every: str) -> None:
     env = {**os.environ, "TQDM_MININTERVAL": "0", "PYTHONUNBUFFERED": "1"}
     code = "import sys; from ros_margcal.cli import main; sys.exit(main(sys.argv[1:]))"
-    raw = _run_on_pty([sys.executable, "-c", code, "replay", str(recording), "--sensor", "mag", "--status-every", status_every], env)
+    raw = _run_on_pty([sys.executable, "-c", code, "-v", "replay", str(recording), "--sensor", "mag", "--status-every",
+                       status_every], env)  # -v: the calibrator's debug log lines too
     lines = render(raw)
     assert any(PROGRESS.search(x) for x in lines) or PROGRESS.search(raw), "no progress bar was shown"
     assert sum(bool(re.search(r"\d+\.\d\d s  mag", x)) for x in lines) >= (20 if status_every == "2" else 2), "no timeline"
-    assert any("INFO ros_margcal" in x for x in lines), "no log record was written"
+    assert any("DEBUG ros_margcal" in x for x in lines), "no log record was written"
     mixed = [x for x in lines if PROGRESS.search(x) and TEXT.search(x)]
     assert not mixed, f"{len(mixed)} lines mix progress with text, e.g. {mixed[:3]}"
 
@@ -96,3 +97,17 @@ def test_quiet_prints_no_timeline(recording: Path) -> None:
     lines = render(_run_on_pty([sys.executable, "-c", code, "replay", str(recording), "--sensor", "mag", "-q"], env))
     assert not any(re.search(r"\d+\.\d\d s  mag", x) for x in lines)
     assert any("final state after" in x for x in lines)
+
+
+def test_each_event_is_printed_once(recording: Path) -> None:
+    """Without -v the timeline alone tells what happened: no log line repeats an event's text."""
+    code = "import sys; from ros_margcal.cli import main; sys.exit(main(sys.argv[1:]))"
+    done = subprocess.run([sys.executable, "-c", code, "replay", str(recording), "--sensor", "mag", "--status-every", "0"],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    lines = (done.stdout + done.stderr).splitlines()
+    events = [x.split("calibrated ", 1)[1] for x in lines if re.search(r"\d+\.\d\d s  mag    calibrated ", x)]
+    assert events, "no calibration in the timeline"
+    logged = [x for x in lines if re.match(r"(DEBUG|INFO|WARNING) ros_margcal", x)]
+    assert not [x for x in logged if any(e in x for e in events)], logged[:3]
+    assert all(sum(e in x for x in lines) == 1 for e in events)
