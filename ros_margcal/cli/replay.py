@@ -34,6 +34,7 @@ from ..stream.calibrator import SensorCalibrator
 from ..stream.config import PipelineConfig
 from ..stream.replay import replay, replay_plan
 from ..stream.status import Status
+from ..stream.view import coverage_view
 from ..validation.shipped import load_validator
 from .raw_units import prepare, resolve_unit
 from .set_option import SET_HELP, parse_sets, sensor_options
@@ -67,7 +68,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("--status-every", type=float, default=10.0, metavar="S",
                    help="status line every S seconds of recording time (default 10; 0 = events only)")
     p.add_argument("--json", type=Path, metavar="FILE", help="write the status timeline and final calibrations as JSON")
-    p.add_argument("--plot", type=Path, metavar="FILE.png", help="write the coverage plot (phi vs theta)")
+    p.add_argument("--plot", type=Path, metavar="FILE.png",
+                   help="write the live view (samples, covered bins, fitted ellipsoid: what RViz shows) and the coverage plot")
     p.add_argument("-q", "--quiet", action="store_true", help="no timeline, only the final calibrations")
     p.add_argument("--full-only", action="store_true",
                    help="the full path alone: no partial or early MAP calibrations (the rule before issue 14)")
@@ -96,29 +98,52 @@ def _compare(cal: Calibration, truth: Calibration) -> dict[str, float]:
 
 
 def _plot(cals: dict[str, SensorCalibrator], path: Path) -> None:
+    """Per sensor the node's live view (``stream.view``, what RViz shows on /calib/markers: samples about the centre
+    in field radii, covered bins, the fitted ellipsoid, coloured by state) and the buffered directions in azimuth
+    and elevation (Camps et al. 2009, Fig. 5)."""
     import matplotlib  # optional dependency (plots only): imported when a plot is asked for
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, max(1, len(cals)), figsize=(6 * max(1, len(cals)), 4), squeeze=False)
-    for ax, (s, c) in zip(axes[0], sorted(cals.items()), strict=False):
-        pts = c.buffer.points()
-        centre = c.calibration.offset if c.calibration is not None else c.buffer.center
-        d = pts - centre
+    colours = {"collecting": "#ffb300", "ready": "#3380ff", "calibrated": "#1acc33", "rejected": "#e61a1a"}
+    n = max(1, len(cals))
+    fig = plt.figure(figsize=(11, 4.5 * n))
+    for row, (s, c) in enumerate(sorted(cals.items())):
+        view = coverage_view(c)
+        colour = colours.get(view.state, "grey")
+        ax = fig.add_subplot(n, 2, 2 * row + 1, projection="3d")
+        if len(view.bins):
+            ax.scatter(*view.bins.T, s=8, c="0.6", marker="s", alpha=0.5, label="covered bins")
+        if len(view.points):
+            ax.scatter(*view.points.T, s=5, c=colour, label="buffered samples")
+        if view.axes is not None and view.radii is not None:
+            u, v = np.meshgrid(np.linspace(0, 2 * np.pi, 30), np.linspace(0, np.pi, 15))
+            unit = np.stack([np.cos(u) * np.sin(v), np.sin(u) * np.sin(v), np.cos(v)], axis=-1)
+            surf = (unit * view.radii) @ view.axes.T
+            ax.plot_wireframe(surf[..., 0], surf[..., 1], surf[..., 2], color=colour, alpha=0.3, linewidth=0.5)
+        ax.set_box_aspect((1, 1, 1))
+        for setlim in (ax.set_xlim, ax.set_ylim, ax.set_zlim):
+            setlim(-1.3, 1.3)
+        ax.set_xlabel("x")
+        ax.set_ylabel("y")
+        ax.set_zlabel("z")
+        ax.set_title(f"{s}: {view.state}, {100 * view.coverage:.0f} % of bins (unit: {view.radius:.4g} {view.unit})")
+        ax.legend(loc="upper left", fontsize="small")
+        ax2 = fig.add_subplot(n, 2, 2 * row + 2)
+        d = c.buffer.points() - (c.calibration.offset if c.calibration is not None else c.buffer.center)
         if c.calibration is not None:
             d = d @ c.calibration.matrix.T  # directions of the calibrated field
         theta = np.degrees(np.arctan2(d[:, 2], np.hypot(d[:, 0], d[:, 1]))) if len(d) else np.zeros(0)
         phi = np.degrees(np.arctan2(d[:, 1], d[:, 0])) if len(d) else np.zeros(0)
-        ax.scatter(phi, theta, s=6)
-        ax.set_xlim(-180, 180)
-        ax.set_ylim(-90, 90)
-        ax.set_xlabel("phi (azimuth), deg")
-        ax.set_ylabel("theta (elevation), deg")
-        st = c.status()
-        ax.set_title(f"{s}: {st.state.value}, {len(pts)} samples, {100 * st.coverage:.0f} % of bins")
-        ax.grid(True, alpha=0.3)
-    fig.suptitle("Buffered directions (Camps et al. 2009, Fig. 5 projection)")
+        ax2.scatter(phi, theta, s=6, c=colour)
+        ax2.set_xlim(-180, 180)
+        ax2.set_ylim(-90, 90)
+        ax2.set_xlabel("phi (azimuth), deg")
+        ax2.set_ylabel("theta (elevation), deg")
+        ax2.set_title(f"{s}: buffered directions, {len(d)} samples")
+        ax2.grid(True, alpha=0.3)
+    fig.suptitle("What the calibrators have seen (the node's /calib/markers; Camps et al. 2009, Fig. 5 projection)")
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=100)
