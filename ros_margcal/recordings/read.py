@@ -41,14 +41,19 @@ def read_recording(
         A Recording without ground truth (``truth`` None).
 
     Raises:
-        RecordingError: missing file, bad header, non-numeric or non-finite cells, empty file, no
-            (or no unique) matching topic, time going backwards (``order="check"``), an unknown ``order``.
+        RecordingError: missing file, a ROS 1 ``.bag`` (with the command that converts it), bad header,
+            non-numeric or non-finite cells, empty file, no (or no unique) matching topic, time going
+            backwards (``order="check"``), an unknown ``order``.
     """
     check_sensor(sensor)
     how = time_order(order, sort)
     p = Path(path)
     if not p.exists():
         msg = f"recording {p} does not exist"
+        raise RecordingError(msg)
+    if p.suffix == ".bag":  # ROS 1: rosbags reads it only through its converter
+        msg = (f"{p} is a ROS 1 bag; convert it to rosbag2 first: rosbags-convert --src {p} --dst {p.with_suffix('')} "
+               f"(the rosbags package), then pass {p.with_suffix('')}")
         raise RecordingError(msg)
     if is_bag(p):
         return read_bag(p, sensor, topic, how)

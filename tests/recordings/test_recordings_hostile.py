@@ -109,3 +109,14 @@ def test_replay_of_a_bag_without_messages_fails_like_calibrate(tmp_path: Path, c
     err = capsys.readouterr().err
     assert ("no sensor_msgs/Imu or MagneticField messages" in err or "holds no messages" in err) and "Traceback" not in err
     assert main(["calibrate", str(path), "--sensor", "mag"]) == 2
+
+
+@pytest.mark.parametrize("command", ["calibrate", "replay", "diagnose"])
+def test_a_ros1_bag_is_refused_with_the_command_that_converts_it(tmp_path: Path, command: str,
+                                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    """A ROS 1 .bag: exit 2, one line naming rosbags-convert with this file (not a CSV header complaint)."""
+    bag = tmp_path / "drive.bag"
+    bag.write_bytes(b"#ROSBAG V2.0\n" + bytes(64))
+    assert main([command, str(bag), "--sensor", "mag"]) == 2
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("margcal ")]
+    assert len(err) == 1 and "ROS 1 bag" in err[0] and f"rosbags-convert --src {bag}" in err[0], err
