@@ -33,7 +33,12 @@ held-out set (seeds 901-903, factors 0.65 and 1.5), run once with ``--part all``
 round (a step against a drift on the step evidence; the ``residual_cubic`` stage) were developed on other seeds
 (1101-1212) and each run once on every part before it was merged; the *check* set (seeds 951-953, factors 0.85
 and 1.25) was then added and run once on the merged code.
-``--part tune|held|fresh|new|final|last|check|all``. Prints the
+Rough motion (issue 27): the parts ``rough_tune`` (seeds 11-12, looked at while tuning) and ``rough`` (seeds
+1301-1303, factors 0.8 and 1.25, reported only) generate the same effects with attitude steps of a few degrees per
+sample at 50 Hz (``ROUGH``, ``tests/independent/rough_motion.py``: a fast-turning, vibrating platform); ``all``
+leaves them out. ``--command-timing`` times the whole ``margcal diagnose`` command (a new process, its imports, the
+validator's retraining and the report included) idle and with the other core kept busy.
+``--part tune|held|fresh|new|final|last|check|rough_tune|rough|all``. Prints the
 top-1 of each part, the confusion matrix (also ``confusion_independent.png``), tracebacks (must be 0) and
 the time per diagnosis.
 
@@ -47,6 +52,8 @@ from __future__ import annotations
 import argparse
 import json
 import multiprocessing
+import runpy
+import subprocess
 import sys
 import tempfile
 import time
@@ -80,10 +87,28 @@ LAST_SEEDS = (901, 902, 903)
 LAST_FACTORS = (0.65, 1.5)
 CHECK_SEEDS = (951, 952, 953)
 CHECK_FACTORS = (0.85, 1.25)
+ROUGH_TUNE_SEEDS = (11, 12)
+ROUGH_SEEDS = (1301, 1302, 1303)
+ROUGH_FACTORS = (0.8, 1.25)
 SPLITS = {"tune": (TUNE_SEEDS, TUNE_FACTORS), "held": (HELD_SEEDS, HELD_FACTORS), "fresh": (FRESH_SEEDS, FRESH_FACTORS),
           "new": (NEW_SEEDS, NEW_FACTORS), "final": (FINAL_SEEDS, FINAL_FACTORS), "last": (LAST_SEEDS, LAST_FACTORS),
-          "check": (CHECK_SEEDS, CHECK_FACTORS)}
+          "check": (CHECK_SEEDS, CHECK_FACTORS), "rough_tune": (ROUGH_TUNE_SEEDS, TUNE_FACTORS),
+          "rough": (ROUGH_SEEDS, ROUGH_FACTORS)}
 """part -> (seeds, magnitude factors of the generator's default)."""
+ROUGH = {"tumble": (2.0, 2), "band": (5.0, 2)}
+"""Rough-motion parts (``rough_tune``: looked at while tuning; ``rough``: reported only): motion -> (speedup,
+shuffle) of ``tests/independent/rough_motion.generate_rough``: the tumble turns twice, the band five times as
+fast, and consecutive pairs of samples are swapped at random (a vibrating platform), attitude steps of about
+5 and 2.6 degrees per sample at 50 Hz (medians)."""
+
+
+def generate_case(part: str, effect: str, magnitude: float, motion: str, seed: int, duration: float) -> dict[str, Any]:
+    """The generator's recording of one case; on a rough part with the motion of ``ROUGH``."""
+    if part.startswith("rough"):
+        speedup, shuffle = ROUGH[motion]
+        return GENERATE_ROUGH(GEN, "mag", motion, duration, 50.0, seed, speedup=speedup, shuffle=shuffle,
+                                        effect=effect, magnitude=magnitude)
+    return GEN.generate("mag", motion, duration, 50.0, seed, effect=effect, magnitude=magnitude)
 
 
 SHAPE_TOLERANCE = 0.0
@@ -91,12 +116,14 @@ SHAPE_TOLERANCE = 0.0
 
 
 GEN = independent_generator()
+GENERATE_ROUGH = runpy.run_path(str(Path(__file__).resolve().parents[1] / "tests" / "independent" / "rough_motion.py"))[
+    "generate_rough"]
 
 
 def jobs(part: str, duration: float) -> list[tuple[str, str, float, str, int, float]]:
     """(part, effect, magnitude, motion, seed, duration) of every case of ``part``."""
     out = []
-    parts = tuple(SPLITS) if part == "all" else (part,)
+    parts = tuple(p for p in SPLITS if not p.startswith("rough")) if part == "all" else (part,)
     for p in parts:
         seeds, factors = SPLITS[p]
         for k, seed in enumerate(seeds):
@@ -134,7 +161,7 @@ def case(job: tuple[str, str, float, str, int, float]) -> dict[str, Any]:
     part, effect, magnitude, motion, seed, duration = job
     row: dict[str, Any] = {"part": part, "effect": effect, "magnitude": magnitude, "motion": motion, "seed": seed,
                            "truth": LABEL[effect]}
-    rec = GEN.generate("mag", motion, duration, 50.0, seed, effect=effect, magnitude=magnitude)
+    rec = generate_case(part, effect, magnitude, motion, seed, duration)
     row["true_shape"] = true_shape(rec["truth"]["W_sym"])
     row["accepted"] = accepted(row["truth"], row["true_shape"], SHAPE_TOLERANCE)
     with tempfile.TemporaryDirectory() as tmp:
@@ -187,6 +214,28 @@ def timing(quick: bool) -> dict[str, float]:
     return out
 
 
+def command_timing(quick: bool, busy: bool) -> float:
+    """Wall time of one whole ``margcal diagnose`` command (a new process) on a 60 s, 50 Hz independent
+    recording, optionally with the other core kept busy by a spinning process."""
+    rec = GEN.generate("mag", "tumble", 60.0, 50.0, 7, effect="none")
+    hog = multiprocessing.get_context("fork").Process(target=_busy, daemon=True)
+    if busy:
+        hog.start()
+    try:
+        with tempfile.TemporaryDirectory() as tmp:
+            path = Path(tmp) / "case.csv"
+            GEN.write_csv(path, rec)
+            cmd = [sys.executable, "-m", "ros_margcal", "diagnose", str(path), "--sensor", "mag", "--norm",
+                   f"{float(rec['truth']['norm']):.6g}", "--out", str(Path(tmp) / "out"), *(["--quick"] if quick else [])]
+            t0 = time.monotonic()
+            subprocess.run(cmd, check=True, capture_output=True)
+            return time.monotonic() - t0
+    finally:
+        if busy:
+            hog.terminate()
+            hog.join()
+
+
 def _hit(r: dict[str, Any]) -> bool:
     return r["cause"] in r.get("accepted", [r["truth"]])
 
@@ -219,9 +268,17 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--timing", action="store_true",
                    help="only time one 60 s / 50 Hz and one 5 min / 100 Hz diagnosis with the other core kept busy")
     p.add_argument("--quick", action="store_true", help="with --timing: time margcal diagnose --quick")
+    p.add_argument("--command-timing", action="store_true",
+                   help="only time the whole margcal diagnose command (60 s at 50 Hz), idle and with the other core busy")
     p.add_argument("--rescore", action="store_true",
                    help="no diagnosis: score the cases of OUT/rows.jsonl again (their diagnoses as saved) at --shape-tolerance")
     args = p.parse_args(argv)
+    if args.command_timing:
+        for busy in (False, True):
+            secs = command_timing(args.quick, busy)
+            print(f"margcal diagnose{' --quick' if args.quick else ''}, 60 s at 50 Hz: {secs:.1f} s, "
+                  f"{'the other core kept busy' if busy else 'no extra load'}")
+        return 0
     if args.timing:
         for name, secs in timing(args.quick).items():
             print(f"{name}: {secs:.1f} s{' (--quick)' if args.quick else ''}, one other core kept busy")

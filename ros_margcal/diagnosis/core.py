@@ -28,8 +28,9 @@ A recording whose clock goes back (a logger restart) is taken in file order, eac
 after the part before (``file_order_times``, ``Diagnosis.time_restarts``): sorted by time its parts would
 interleave.
 
-``diagnose_holdout`` fits on the first part of a recording and measures the shrink on the rest.
-``validator_downstream`` adds the validator's view.
+``diagnose_holdout`` fits on the first part of a recording (the named cause's magnitude, given ``effect``) and
+measures the shrink on the rest. ``validator_downstream`` adds the validator's view. All three report their steps
+to one ``progress`` callback (``progress.CommandProgress``: one bar for the whole command).
 """
 
 from __future__ import annotations
@@ -48,12 +49,14 @@ from ..model.errors import ConfigError, InputError
 from ..sim.simulation import EFFECTS
 from .downstream import N_SET, compare_validators
 from .inputs import check_options, recording_arrays
+from .progress import HOLDOUT_STEPS, diagnosis_steps
 from .ranking import (
     DRIFT_GROUP,
     EffectFit,
     applicable_effects,
     effective_group,
     equivalent_groups,
+    fit_effect,
     gap_with,
     overall_gap,
     rank_effects,
@@ -123,6 +126,8 @@ class Diagnosis:
     time_restarts: list[int] = field(default_factory=list)
     """Samples after which the recording's clock went back (a logger restart): the samples are taken in
     file order, each part's times continued after the part before (``file_order_times``)."""
+    has_temperature: bool = False
+    """The recording has a temperature column that varies (else ``temperature`` is only a drift's shape)."""
     reason: str = ""
     """Why there is no ranking (the twin could not be built: ``unexplained``, or ``saturation`` read off the
     samples), else empty."""
@@ -168,6 +173,7 @@ class Diagnosis:
             "offset_change": self.offset_change,
             "reason": self.reason,
             "time_restarts": self.time_restarts,
+            "has_temperature": self.has_temperature,
         }
 
 
@@ -179,6 +185,18 @@ def _null_gaps(base: Baseline) -> list[float]:
         mean, _ = mean_features(others)
         out.append(overall_gap(stage_gaps(base.features[k].values, mean, base.sd)))
     return out
+
+
+def _counter(progress: Callable[[int, int, str], None] | None, total: int) -> Callable[[str], None]:
+    """``step(name)``: one more step of ``total`` reported to ``progress`` (a no-op without one)."""
+    done = [0]
+
+    def step(name: str) -> None:
+        done[0] += 1
+        if progress is not None:
+            progress(min(done[0], total), total, name)
+
+    return step
 
 
 def _prefer_located_jump(fits: list[EffectFit]) -> list[EffectFit]:
@@ -234,7 +252,8 @@ def diagnose(
             iron: give the level that is expected and only a larger shape is named.
         quick: fewer fitting samples (at most ``QUICK_N_FIT``) and twin seeds (2 averaged, 4 for the
             spread): about three times faster, a noisier ranking.
-        progress: called as ``progress(done, total, effect_name)`` after each effect.
+        progress: called as ``progress(done, total, step)`` after each step (the twin, the baseline's
+            spread, each effect, the decision: ``progress.diagnosis_steps``), e.g. a ``CommandProgress``.
 
     A recording that makes no usable twin (too short, static, nothing converges) is not refused: its
     cause is ``unexplained`` and ``Diagnosis.reason`` says why (a static one, whose sensor never moved:
@@ -255,13 +274,16 @@ def diagnose(
     if sensor not in ("mag", "accel"):
         msg = f"sensor must be 'mag' or 'accel' (the recording says {label!r}); pass --sensor"
         raise ConfigError(msg)
+    step = _counter(progress, diagnosis_steps(sensor))
     if n_seeds < 1 or n_spread < max(2, n_seeds):
         msg = f"need n_seeds >= 1 and n_spread >= max(2, n_seeds), got {n_seeds}, {n_spread}"
         raise ConfigError(msg)
     try:
         twin = build_twin(t, raw, sensor=sensor, temp=temp, norm=norm, rest_noise_raw=rest_noise, n_fit=n_fit,
                           validator=validator, shape_tolerance=shape_tolerance)
+        step("twin")
         base = twin.spread(n_spread)
+        step("baseline spread")
     except InputError:
         raise
     except FIT_ERRORS as exc:  # a recording that makes no usable twin still gets a verdict, with the reason
@@ -281,7 +303,8 @@ def diagnose(
     # its size, the mean over more draws moves away from the one draw the recording holds, and the search,
     # which fitted the size on its seeds, decides (its sym feature was NaN there, which skipped this before)
     refine = () if twin.closed_form else base.seeds
-    fits = rank_effects(twin, base, observable, seeds=seeds, progress=progress, refine_seeds=refine, quick=quick)
+    fits = rank_effects(twin, base, observable, seeds=seeds, progress=lambda _d, _t, name: step(name),
+                        refine_seeds=refine, quick=quick)
     if twin.change is not None:
         fits = _prefer_located_jump(fits)
     group_of = {e.name: effective_group(e, has_temp) for e in observable}
@@ -308,12 +331,14 @@ def diagnose(
         members = sorted(e.name for e in observable if group_of[e.name] == best.group)
         cause = best.group if len(members) > 1 else best.name
         shrink, after, stages_after = best.shrink, best.gap_after, best.stages_after
+    step("decision")
     return Diagnosis(
         where=where, cause=cause, cause_effects=members, shrink=shrink, gap_before=gap_before, gap_after=after,
         stages_before=before, stages_after=stages_after, effects=fits, equivalent=equivalent_groups(observable, has_temp),
         unobservable=[e.name for e in hidden], null_gaps=_null_gaps(base), sensor=sensor, n_samples=len(t),
         n_fit=int(twin.sub.size), noise=twin.noise, seconds=time.monotonic() - t0, twin=twin, baseline=base,
         skipped=dict(twin.skipped), offset_change=_change_dict(twin), reason=reason, time_restarts=restarts,
+        has_temperature=has_temp,
     )
 
 
@@ -340,46 +365,85 @@ def _no_twin(sensor: str, n: int, reason: str, seconds: float, raw: Array | None
                      sensor=sensor, n_samples=n, n_fit=0, noise=math.nan, seconds=seconds, reason=reason)
 
 
-def diagnose_holdout(recording: Any, *, split: float = 0.5, **options: Any) -> dict[str, Any]:
-    """Fit the effect on the first ``split`` of the recording (in time), measure the shrink on the rest.
+def diagnose_holdout(recording: Any, *, split: float = 0.5, effect: str | None = None,
+                     progress: Callable[[int, int, str], None] | None = None, **options: Any) -> dict[str, Any]:
+    """Fit an effect on the first ``split`` of the recording (in time), measure the shrink on the rest.
+
+    With ``effect`` (the cause the whole recording's diagnosis named, ``Diagnosis.best``), only that effect's
+    magnitude is fitted on the first part, so the check tests the named cause; without it the first part
+    gets its own diagnosis and its top effect is carried over (``fit``). ``progress`` is called after each
+    step (``progress.HOLDOUT_STEPS`` with ``effect``).
 
     Returns:
-        A dict with the diagnosis of the first part (``fit``), and for the withheld part its
-        ``gap_before``, ``gap_after`` (the first part's effect and magnitude, not refitted), ``shrink``
-        and per-stage gaps.
+        A dict with ``effect`` and ``magnitude`` (fitted on the first part), ``fit`` (the first part's
+        diagnosis, without ``effect`` only), ``effect_fit`` (the ``EffectFit`` on the first part), and for
+        the withheld part its ``gap_before``, ``gap_after`` (that effect and magnitude, not refitted),
+        ``shrink`` and per-stage gaps.
+
+    Raises:
+        ConfigError: a bad split or an unknown effect; the fit errors of ``twin.FIT_ERRORS`` when a part
+            makes no twin.
     """
     check_options(split=split)
-    t, raw, temp, label, _ = recording_arrays(recording)  # a restarted clock: the parts in file order, ``file_order_times``
+    if effect is not None and effect not in EFFECTS:
+        msg = f"unknown effect {effect!r} for the withheld part; choose from {sorted(EFFECTS)}"
+        raise ConfigError(msg)
+    first, second = _split(recording, split)
+    sensor = options.get("sensor") or first.sensor
+    step = _counter(progress, HOLDOUT_STEPS if effect else diagnosis_steps(sensor) + 1)
+    d1: Diagnosis | None = None
+    if effect is None:
+        d1 = diagnose(first, progress=None if progress is None else lambda _d, _t, name: step(name), **options)
+        fitted = None if d1.cause == "none" else d1.best
+    else:
+        twin1, base1, seeds1 = _part_twin(first, sensor, options)
+        step("withheld part: twin of the first part")
+        search = {"grid_points": 5, "golden_steps": 3} if options.get("quick") else {}
+        fitted = fit_effect(twin1, base1, EFFECTS[effect], seeds=seeds1, **search)
+        step(f"withheld part: {effect} fitted")
+    twin2, base2, seeds = _part_twin(second, sensor, options)
+    before2 = stage_gaps(twin2.features_rec.values, mean_features(base2.features[: len(seeds)])[0], base2.sd)
+    gap_before2 = overall_gap(before2)
+    if fitted is None or fitted.magnitude <= 0:
+        gap_after2, after2 = gap_before2, dict(before2)
+    else:
+        gap_after2, after2 = gap_with(twin2, base2, fitted.name, fitted.magnitude, seeds)
+    step("withheld part: the rest")
+    return {"fit": d1, "effect_fit": fitted, "effect": effect if fitted is None else fitted.name,
+            "magnitude": 0.0 if fitted is None else fitted.magnitude,
+            "gap_before": gap_before2, "gap_after": gap_after2,
+            "shrink": 1.0 - gap_after2 / gap_before2 if gap_before2 > 0 else 0.0,
+            "stages_before": before2, "stages_after": after2}
+
+
+def _split(recording: Any, split: float) -> tuple[Any, Any]:
+    """The first ``split`` of the recording (in time) and the rest, as recordings (``t``, ``raw``, ``temp``,
+    ``sensor``); a restarted clock: the parts in file order (``file_order_times``)."""
+    t, raw, temp, label, _ = recording_arrays(recording)
     cut = int(np.searchsorted(t, t[0] + split * (t[-1] - t[0])))
     part = type("Part", (), {})
     first, second = part(), part()
     for obj, sl in ((first, slice(0, cut)), (second, slice(cut, None))):
         obj.t, obj.raw, obj.sensor = t[sl], raw[sl], label
         obj.temp = None if temp is None else temp[sl]
-    d1 = diagnose(first, **options)
-    sensor = options.get("sensor") or label
+    return first, second
+
+
+def _part_twin(part: Any, sensor: str, options: dict[str, Any]) -> tuple[Twin, Baseline, tuple[int, ...]]:
+    """The twin of one part of a recording, its baseline spread and the seeds effects are compared on, with
+    the diagnosis' options (``quick``: fewer fitting samples and seeds, as ``diagnose``)."""
     quick = bool(options.get("quick"))
     n_fit = options.get("n_fit", DEFAULT_N_FIT)
-    twin2 = build_twin(second.t, second.raw, sensor=sensor, temp=second.temp, norm=options.get("norm"),
-                       rest_noise_raw=options.get("rest_noise"), n_fit=min(n_fit, QUICK_N_FIT) if quick else n_fit,
-                       validator=options.get("validator"), shape_tolerance=options.get("shape_tolerance", 0.0))
-    base2 = twin2.spread(min(options.get("n_spread", 6), 4) if quick else options.get("n_spread", 6))
-    seeds = base2.seeds[: min(options.get("n_seeds", 3), 2) if quick else options.get("n_seeds", 3)]
-    before2 = stage_gaps(twin2.features_rec.values, mean_features(base2.features[: len(seeds)])[0], base2.sd)
-    gap_before2 = overall_gap(before2)
-    best = d1.best
-    if d1.cause == "none" or best is None:
-        gap_after2, after2 = gap_before2, dict(before2)
-    else:
-        gap_after2, after2 = gap_with(twin2, base2, best.name, best.magnitude, seeds)
-    return {"fit": d1, "effect": None if best is None else best.name,
-            "magnitude": 0.0 if best is None else best.magnitude,
-            "gap_before": gap_before2, "gap_after": gap_after2,
-            "shrink": 1.0 - gap_after2 / gap_before2 if gap_before2 > 0 else 0.0,
-            "stages_before": before2, "stages_after": after2}
+    twin = build_twin(part.t, part.raw, sensor=sensor, temp=part.temp, norm=options.get("norm"),
+                      rest_noise_raw=options.get("rest_noise"), n_fit=min(n_fit, QUICK_N_FIT) if quick else n_fit,
+                      validator=options.get("validator"), shape_tolerance=options.get("shape_tolerance", 0.0))
+    n_spread, n_seeds = options.get("n_spread", 6), options.get("n_seeds", 3)
+    base = twin.spread(min(n_spread, 4) if quick else n_spread)
+    return twin, base, base.seeds[: min(n_seeds, 2) if quick else n_seeds]
 
 
-def validator_downstream(diag: Diagnosis, validator: object | None, *, n_sets: int = 400, seed: int = 0) -> dict[str, Any]:
+def validator_downstream(diag: Diagnosis, validator: object | None, *, n_sets: int = 400, seed: int = 0,
+                         progress: Callable[[int, int, str], None] | None = None) -> dict[str, Any]:
     """What the chosen effect does to the validator: predicted error before and after retraining.
 
     The validator's prediction on a ``N_SET``-sample set of the recording (evenly spaced over the
@@ -389,9 +453,18 @@ def validator_downstream(diag: Diagnosis, validator: object | None, *, n_sets: i
     magnitude) and ``control`` (as many sets without it), the retraining sets at the twin's noise level
     and labelled like the measured error. The flat keys ``predicted_before`` / ``_after`` / ``_control``
     and ``log_error_*`` (``|log10(measured / predicted)|``, 0 is perfect) repeat the table for the
-    summary line.
+    summary line. ``progress`` is called once, when it is done (one step of ``progress.command_steps``).
     """
     check_options(n_sets=n_sets)
+    step = _counter(progress, 1)
+    try:
+        return _downstream(diag, validator, n_sets, seed)
+    finally:
+        step("validator retrained")
+
+
+def _downstream(diag: Diagnosis, validator: object | None, n_sets: int, seed: int) -> dict[str, Any]:
+    """``validator_downstream`` without its progress."""
     twin = diag.twin
     if validator is None or twin is None:
         return {"available": False, "reason": "no validator"}

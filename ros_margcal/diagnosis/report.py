@@ -28,11 +28,17 @@ import numpy as np
 from ..model.calibration_file import write_temp
 from ..model.errors import ConfigError
 from .core import Diagnosis
+from .ranking import EffectFit
 from .twin import FIT_ERRORS
 
 __all__ = ["figure_png", "summary", "write_report"]
 
 log = logging.getLogger(__name__)
+
+WARM_UP_NAME = "warm-up drift"
+"""How ``temperature`` is printed on a recording without a temperature column."""
+WARM_UP_KELVIN = 15.0
+"""Temperature rise of the warm-up the simulator synthesises without a temperature column (25 -> 40 °C)."""
 
 
 def _plt() -> Any:
@@ -145,14 +151,14 @@ def summary(diag: Diagnosis) -> str:
     elif best is None or diag.reason:
         lines.append(f"cause: {diag.cause} ({diag.reason or 'no effect could be fitted'})")
     else:
-        also = f" ({' / '.join(diag.cause_effects)}: cannot be told apart)" if len(diag.cause_effects) > 1 else ""
-        lines.append(f"cause: {diag.cause}{also}; {best.name} at {best.magnitude:.4g} {best.unit}")
+        members = [_shown(n, diag.has_temperature) for n in diag.cause_effects]
+        also = f" ({' / '.join(members)}: cannot be told apart)" if len(members) > 1 else ""
+        lines.append(f"cause: {diag.cause}{also}; {_fitted(best, diag.has_temperature)}")
         lines.append(f"shrink: {100 * diag.shrink:.0f} % of the gap removed "
                      f"(overall {diag.gap_before:.2f} -> {diag.gap_after:.2f})")
     if diag.close_calls():
         lines.append(f"close call (the data barely separate them): {', '.join(diag.close_calls())}")
-    ranked = ", ".join(f"{f.name} {100 * f.shrink:.0f} %" for f in diag.effects[:4])
-    lines.append(f"ranking: {ranked}")
+    lines += _ranking_lines(diag)
     if diag.unobservable:
         lines.append(f"unobservable with norm-based data: {', '.join(diag.unobservable)}")
     for name, why in diag.skipped.items():
@@ -174,6 +180,47 @@ def summary(diag: Diagnosis) -> str:
                      f"({ds['log_error_after']:.2f}); on {ds['n_sets']} sets without it: {ds['predicted_control']:.3g} "
                      f"({ds['log_error_control']:.2f})")
     return "\n".join(lines)
+
+
+def _shown(name: str, has_temperature: bool) -> str:
+    """An effect's name as printed: without a temperature column ``temperature`` is only a drift of the shape
+    of a warm-up (``ranking.effective_group``), so it is not called temperature."""
+    return WARM_UP_NAME if name == "temperature" and not has_temperature else name
+
+
+def _fitted(best: EffectFit, has_temperature: bool) -> str:
+    """The named effect and its fitted size; a temperature effect without a temperature column as the offset
+    drift its synthesised warm-up (``WARM_UP_KELVIN``) makes, not as a coefficient per kelvin."""
+    if best.name == "temperature" and not has_temperature:
+        return f"{WARM_UP_NAME}: the offset drifts by about {_drift_percent(best)} over the recording along a warm-up curve"
+    return f"{best.name} at {best.magnitude:.4g} {best.unit}"
+
+
+def _drift_percent(f: EffectFit) -> str:
+    """The offset change a temperature effect's synthesised warm-up makes, in % of the field."""
+    return f"{100 * f.magnitude * WARM_UP_KELVIN:.3g} % of the field"
+
+
+def _size(f: EffectFit, has_temperature: bool) -> str:
+    """An effect's fitted magnitude with its unit (a warm-up drift as its offset change, ``_fitted``)."""
+    if f.name == "temperature" and not has_temperature:
+        return f"{_drift_percent(f)} (offset drift)"
+    return f"{f.magnitude:.4g} {f.unit}"
+
+
+def _ranking_lines(diag: Diagnosis) -> list[str]:
+    """The ranking in shrink order (largest first); a line more when the named effect is not the first of it
+    (decided on what separates the two, ``ranking.separate_close_calls`` / ``separate_step_from_walk``)."""
+    by_shrink = sorted(diag.effects, key=lambda f: (-f.shrink, f.gap_after))
+    out = ["ranking (share of the gap removed): "
+           + ", ".join(f"{_shown(f.name, diag.has_temperature)} {100 * f.shrink:.0f} %" for f in by_shrink[:4])]
+    best = diag.best
+    if best is not None and by_shrink and by_shrink[0] is not best and diag.cause not in ("none", "unexplained"):
+        out.append(f"named {_shown(best.name, diag.has_temperature)} before "
+                   f"{_shown(by_shrink[0].name, diag.has_temperature)} ({100 * best.shrink:.1f} % against "
+                   f"{100 * by_shrink[0].shrink:.1f} %): the features that separate the two, or the time course of "
+                   "the offset, fit it better")
+    return out
 
 
 @contextlib.contextmanager
@@ -245,8 +292,9 @@ def write_report(diag: Diagnosis, out_dir: str | Path, *, extra: dict[str, Any] 
                     _img(_gap_plot(diag), "stage gaps before and after")]
         except FIT_ERRORS as exc:  # the report is written without its plots rather than not at all
             log.warning("report plots left out: %s", exc)
-    eff_rows = [[f.name, f.group, f"{f.magnitude:.4g} {f.unit}", f"{f.gap_before:.2f}", f"{f.gap_after:.2f}",
-                 f"{100 * f.shrink:.0f} %"] for f in diag.effects]
+    eff_rows = [[_shown(f.name, diag.has_temperature), f.group, _size(f, diag.has_temperature), f"{f.gap_before:.2f}",
+                 f"{f.gap_after:.2f}", f"{100 * f.shrink:.0f} %"]
+                for f in sorted(diag.effects, key=lambda f: (-f.shrink, f.gap_after))]
     stage_rows = [[k, f"{v:.2f}", f"{diag.stages_after.get(k, v):.2f}"] for k, v in diag.stages_before.items()]
     groups = "; ".join(f"{g['group']}: {', '.join(g['effects'])}" for g in diag.equivalent) or "none"  # type: ignore[arg-type]
     body = f"""<!doctype html><html><head><meta charset="utf-8"><title>margcal diagnosis</title>

@@ -70,8 +70,8 @@ from .downstream import N_SET, validator_errors
 from .fit_checks import lm_diag, sym_fit
 
 __all__ = [
-    "STAGES", "STAGE_FLOORS", "StageFeatures", "clipped_shares", "rest_noise", "sh_basis", "sh_power", "stage_features",
-    "stage_floor", "stage_gaps"
+    "STAGES", "STAGE_FLOORS", "StageFeatures", "clipped_shares", "residual_noise", "rest_noise", "sh_basis", "sh_power",
+    "stage_features", "stage_floor", "stage_gaps"
 ]
 
 log = logging.getLogger(__name__)
@@ -145,6 +145,17 @@ def rest_noise(raw: Array) -> float:
     return float(np.sqrt(np.mean(np.square(out))))
 
 
+def residual_noise(r: Array) -> float:
+    """White noise std, fraction of the field radius, from trimmed first differences of a fit's norm
+    residual ``r`` in time order: the motion between samples does not enter (the residual of a fitted
+    sensor barely depends on the direction), where it does enter second differences of the readings."""
+    if r.size < 5:
+        return 0.0
+    d1 = np.abs(np.diff(r))
+    keep = d1[d1 <= np.quantile(d1, 0.95)]
+    return float(np.sqrt(np.mean(keep**2))) / math.sqrt(2.0) / _TRIM_STD
+
+
 def _readout_features(raw: Array) -> dict[str, Array]:
     n = raw.shape[0]
     uniq, rep = [], []
@@ -168,10 +179,14 @@ def sh_basis(dirs: Array, l_max: int = _L_MAX) -> Array:
     """Real spherical harmonics ``Y_lm`` (orthonormal on the sphere) at unit ``dirs``, (n, (l_max+1)^2)."""
     theta = np.arccos(np.clip(dirs[:, 2], -1.0, 1.0))
     phi = np.arctan2(dirs[:, 1], dirs[:, 0])
+    # every (l, |m|) in one call, each once (+m and -m share it): the same values, half the time
+    pairs = [(ell, m) for ell in range(l_max + 1) for m in range(ell + 1)]
+    degree, order = (np.array(x)[:, None] for x in zip(*pairs, strict=True))
+    table = dict(zip(pairs, sph_harm_y(degree, order, theta[None, :], phi[None, :]), strict=True))
     cols = []
     for ell in range(l_max + 1):
         for m in range(-ell, ell + 1):
-            y = sph_harm_y(ell, abs(m), theta, phi)
+            y = table[(ell, abs(m))]
             if m == 0:
                 cols.append(y.real)
             elif m > 0:

@@ -12,7 +12,10 @@ From the recording's own fits (``fitting.fit`` on an evenly spaced subsample):
 A recording without time continuity (consecutive samples more than ``MAX_STEP_DEG`` apart, e.g. a
 coverage pattern written with made-up timestamps) keeps its directions unsmoothed, skips the
 ``rest_noise`` stage (second differences would measure the motion) and, unless the caller gives the
-rest noise, takes the twin's noise from the best fit's residual; ``Twin.skipped`` says why.
+rest noise, takes the twin's noise from the best fit's residual; ``Twin.skipped`` says why. A recording that
+moves fast between samples (a vibrating or fast-turning platform: a few degrees per sample), whose second
+differences measure the motion, skips the ``rest_noise`` stage too, keeps its directions unsmoothed and takes
+the white noise from first differences of the fit's residual (``_white_noise``).
 
 ``Twin.features(effects, seed)`` simulates the twin (``simulation.simulate`` with the recording's
 timestamps and temperature, optionally with effects from the registry) and returns its stage
@@ -38,7 +41,7 @@ from ..sim.simulation import simulate
 from .baseline_noise import ar1_noise, estimate_slow_noise, shaped_truth
 from .changes import OffsetChange
 from .fit_checks import IllConditionedFit, checked_sym, lm_diag, sym_fit
-from .stages import StageFeatures, rest_noise, stage_features
+from .stages import StageFeatures, residual_noise, rest_noise, stage_features
 from .twin_fits import (
     CHANGE_EVIDENCE,
     MAX_ITER,
@@ -65,6 +68,13 @@ FIT_ERRORS = (MargCalError, np.linalg.LinAlgError, ValueError, FloatingPointErro
 """What a twin simulation or fit may raise on odd data; caught so that a diagnosis always gives a verdict."""
 DEFAULT_N_FIT = 6000
 """Samples the fitting stages use (evenly spaced in time); the read-out stages use every sample."""
+FAST_MOTION_RATIO = 1.5
+"""Ratio of the readings' noise (second differences) to the fit residual's (first differences) above which the
+motion between samples, not the noise, sets the second differences (``_white_noise``; a smooth recording: 0.8-1.05,
+attitude steps of a few degrees per sample: 2-18)."""
+FAST_MOTION_MIN_STEP_DEG = 1.0
+"""Median angle between consecutive samples below which the motion is never taken for the second differences'
+noise (a 0.4 degree step: a band of tilts at 50 Hz, whose clipped readings can fool the ratio)."""
 MAX_STEP_DEG = 10.0
 """Median angle between consecutive samples above which a recording has no time continuity: its rest
 noise cannot be measured from second differences and its directions are not smoothed."""
@@ -248,6 +258,29 @@ class Twin:
                 f"(rest noise {self.noise:.3g} of the field radius) do not make a usable twin")
 
 
+def _white_noise(pts: Array, h: Array, raw_radius: float, norm: float, step: float) -> tuple[float, str]:
+    """The recording's white noise (fraction of the field radius) and, when fast motion inflates the second
+    differences of the readings, why the ``rest_noise`` stage is left out (else "").
+
+    Second differences (``stages.rest_noise``) hold the motion between samples too: a platform that turns or
+    vibrates by a few degrees per sample adds several percent of the field. The first differences of the fit's
+    norm residual (``stages.residual_noise``) do not see the motion; when the readings' estimate exceeds
+    ``FAST_MOTION_RATIO`` times it and the sensor turns by ``FAST_MOTION_MIN_STEP_DEG`` or more per sample (median
+    ``step``; slower motion cannot set the second differences), the residual's is the noise.
+    """
+    from_readings = rest_noise(pts) / raw_radius
+    if step < FAST_MOTION_MIN_STEP_DEG:
+        return from_readings, ""
+    from_residual = residual_noise(np.linalg.norm(h, axis=1) / norm - 1.0)
+    if not from_readings > FAST_MOTION_RATIO * from_residual:
+        return from_readings, ""
+    why = (f"fast motion: second differences of the readings give a noise of {100 * from_readings:.3g} % of the "
+           f"field, the fit's residual {100 * from_residual:.3g} % (more than {FAST_MOTION_RATIO:g} times less): "
+           "they measure the motion between samples, so the twin's noise is the residual's and its directions "
+           "are the recording's own, unsmoothed")
+    return from_residual, why
+
+
 def build_twin(
     t: Array,
     raw: Array,
@@ -335,7 +368,12 @@ def build_twin(
         skipped["offset_change"] = unfitted
     if np.ptp(times) <= 0:
         skipped["residual_time"] = "the recording has no time span (all timestamps equal)"
-    if step > MAX_STEP_DEG:
+    white = _white_noise(pts, h, truth.raw_radius, best.norm, step) if step <= MAX_STEP_DEG else None
+    if white is not None and white[1]:
+        skipped["rest_noise"] = white[1]
+        lengths = np.linalg.norm(h, axis=1, keepdims=True)
+        dirs = h / np.where(lengths > 0, lengths, 1.0)
+    elif step > MAX_STEP_DEG:
         skipped["rest_noise"] = (
             f"no time continuity: consecutive samples point {step:.0f} deg apart (median; a turning sensor "
             f"sampled as a time series moves < {MAX_STEP_DEG:.0f} deg), so second differences measure the motion, "
@@ -360,11 +398,11 @@ def build_twin(
                                       closed_form=True)
     r_raw = truth.raw_radius
     if rest_noise_raw is None:
-        if "rest_noise" in skipped:
+        if white is None:
             rms = best.stats.rms_relative if best.stats is not None else 0.0
             noise = float(rms) * best.raw_radius / r_raw
         else:
-            noise = rest_noise(pts) / r_raw
+            noise = white[0]
     else:
         if not (math.isfinite(rest_noise_raw) and rest_noise_raw >= 0):
             msg = f"rest noise must be a non-negative std in raw units, got {rest_noise_raw!r}"
@@ -386,11 +424,11 @@ def build_twin(
     elif change is None:  # a best fitted before the features needed the closed form: its cross terms only
         truth = shaped_truth(truth, best, shape_tolerance, cross_only=closed_form)
     slow = (0.0, 1.0)
-    if rest_noise_raw is None and "rest_noise" not in skipped and best.stats is not None:
+    if rest_noise_raw is None and white is not None and best.stats is not None:
         # a rest noise the caller measured (a static recording) is the sensor's whole noise model
         r_best = np.linalg.norm(best.apply(pts[sub]), axis=1) / best.norm - 1.0
-        white = rest_noise(pts) / r_raw  # measured, not the caller's: extra white noise is no slow noise
-        slow = estimate_slow_noise(times[sub], r_best, white, dirs[sub])
+        # measured, not the caller's: extra white noise is no slow noise
+        slow = estimate_slow_noise(times[sub], r_best, white[0], dirs[sub])
     truth = truth.replace(sensor=sensor, method="twin")
     log.debug("twin: %d samples (%d fitted), radius %.4g raw units, noise %.3g of it", n, sub.size, r_raw, noise)
     for name, why in skipped.items():

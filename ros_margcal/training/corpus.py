@@ -394,7 +394,8 @@ def build_corpus(n_sets: int, seed: int = 0, *, progress: bool | TextIO = False,
         print(file=stream)
     n_failed = sum(r["fit"] is None for r in rows)
     meta = {"seed": seed, "n_sets": n_sets, "n_failed": n_failed, **options}
-    log.info("corpus of %d sets (seed %d): %d fits failed", n_sets, seed, n_failed)
+    log.debug("corpus of %d sets (seed %d): %d of them too poor for a fit, labelled as failed calibrations", n_sets,
+              seed, n_failed)
     return Corpus(
         features=np.array([r["features"] for r in rows]),
         error=np.array([r["error"] for r in rows]),

@@ -321,16 +321,23 @@ def test_real_attached_magnet_change_is_located(real_data_dir: Path) -> None:
 
 def test_a_failed_holdout_keeps_the_diagnosis(monkeypatch: pytest.MonkeyPatch) -> None:
     """--holdout on a recording whose first part cannot be diagnosed reports why instead of raising
-    (which would lose the whole recording's diagnosis, as on BROAD 36)."""
+    (which would lose the whole recording's diagnosis, as on BROAD 36); the check fits the named cause."""
     from ros_margcal.cli import diagnose as diagnose_cli
     from ros_margcal.model.errors import ConvergenceError
 
-    def fails(*_a: object, **_k: object) -> None:
+    seen: dict[str, object] = {}
+
+    def fails(*_a: object, **k: object) -> None:
+        seen.update(k)
         raise ConvergenceError("lm did not converge")
 
     monkeypatch.setattr(diagnose_cli, "diagnose_holdout", fails)
-    h = diagnose_cli._holdout(object(), 0.5, {})
-    assert h == {"split": 0.5, "error": "lm did not converge"}
+    named = type("D", (), {"cause": "slow_drift", "best": type("F", (), {"name": "bias_drift"})()})()
+    h = diagnose_cli._holdout(object(), 0.5, named, {}, None)
+    assert h == {"split": 0.5, "named_cause": "slow_drift", "error": "lm did not converge"}
+    assert seen["effect"] == "bias_drift"
+    none = type("D", (), {"cause": "none", "best": None})()
+    assert "no effect to test" in diagnose_cli._holdout(object(), 0.5, none, {}, None)["error"]
 
 
 def test_twin_falls_back_to_the_baseline_fit_when_sym_does_not_converge(monkeypatch: pytest.MonkeyPatch) -> None:
