@@ -18,7 +18,7 @@ import numpy as np
 
 from ..model.calibration import FORCED, Calibration
 from ..model.errors import InputError
-from ..model.heading import heading_p95
+from ..model.heading import format_bound, heading_p95_quantile
 from ..stream.config import PipelineConfig, plausibility
 from .fit_rescue import HEADING_DETERMINED_DEG
 
@@ -32,13 +32,13 @@ _NO_STD_LIMIT = 10.0  # the largest max_parameter_std (FIELD_SPECS): a partial f
 def _heading(cal: Calibration, cfg: PipelineConfig) -> str:
     """Why the predicted level heading error refuses ``cal`` ("" when within the limit or not computable)."""
     try:
-        level = heading_p95(cal, tilt_deg=0.0, inclination=60.0)
+        level = heading_p95_quantile(cal, tilt_deg=0.0, inclination=60.0)
     except (InputError, ValueError, np.linalg.LinAlgError):
         return ""  # no covariance over the symmetric model (diag, eye, mvee): plausibility judged it
     if not (math.isfinite(level) and level <= HEADING_DETERMINED_DEG):
         return "predicted heading error not determined (the data leave the horizontal terms free)"
     if level > cfg.max_heading_p95_deg:
-        return (f"predicted heading error p95 {level:.3g} deg level > limit {cfg.max_heading_p95_deg:.3g} deg "
+        return (f"predicted heading error p95 {format_bound(level)} level > limit {cfg.max_heading_p95_deg:.3g} deg "
                 "(max_heading_p95_deg)")
     return ""
 

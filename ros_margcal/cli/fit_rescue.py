@@ -43,7 +43,7 @@ from ..model.calibration import Calibration
 from ..model.errors import ConvergenceError, DegenerateDataError, InputError
 from ..model.fitting import fit
 from ..model.fitting_prior import PriorFit, broad_prior, fit_with_prior
-from ..model.heading import heading_p95, heading_p95_typical
+from ..model.heading import UNDETERMINED_DEG, format_bound, heading_p95_quantile, heading_p95_typical
 from ..stream.config import STATIC_SPREAD, PipelineConfig, plausibility, relative_spread
 
 __all__ = [
@@ -62,7 +62,7 @@ SPIKE_GAP = 3.0
 SPIKE_SHARE = 0.02
 """At most this share of the readings (at least one) are spikes; more far readings are data, not glitches."""
 
-HEADING_DETERMINED_DEG = 90.0
+HEADING_DETERMINED_DEG = UNDETERMINED_DEG
 """A predicted heading error p95 beyond this (or not finite) is printed as not determined, not as 9845001 deg."""
 RESCUE_SHARED_DROP = 0.5
 """Evidence an offset change needs here: one shape with two centres removing half the single fit's
@@ -371,19 +371,19 @@ def _change(t: Array | None, pts: Array, failure: str, *, model: str, norm: floa
 
 def heading_text(cal: Calibration) -> str:
     """Predicted heading error p95 from the covariance, level and at 30° tilt (60° inclination), as the 95 % bound
-    and the typical figure (``heading.heading_p95_typical``), or ""."""
+    (``heading.heading_p95_quantile``) and the typical figure (``heading.heading_p95_typical``), or ""; a figure
+    that is not determined says so (``heading.format_bound``)."""
     try:
-        level = heading_p95(cal, tilt_deg=0.0, inclination=60.0)
-        tilt = heading_p95(cal, tilt_deg=30.0, inclination=60.0)
+        level = heading_p95_quantile(cal, tilt_deg=0.0, inclination=60.0)
+        tilt = heading_p95_quantile(cal, tilt_deg=30.0, inclination=60.0)
         typ_level = heading_p95_typical(cal, tilt_deg=0.0, inclination=60.0)
         typ_tilt = heading_p95_typical(cal, tilt_deg=30.0, inclination=60.0)
     except (InputError, ValueError, np.linalg.LinAlgError):
         return ""
     if not (math.isfinite(level) and level <= HEADING_DETERMINED_DEG):
-        return (f"predicted heading error p95: not determined (level figure {level:.3g} deg beyond "
-                f"{HEADING_DETERMINED_DEG:g} deg: the data leave the horizontal terms free)")
+        return "predicted heading error p95: not determined (the data leave the horizontal terms free)"
     if not (math.isfinite(tilt) and tilt <= HEADING_DETERMINED_DEG):
-        return (f"predicted heading error p95: {level:.2g} deg level (95 % bound; typical {typ_level:.2g} deg); at 30 "
-                f"deg tilt not determined ({tilt:.3g} deg): the data leave the vertical terms free")
-    return (f"predicted heading error p95: {level:.2g} deg level, {tilt:.2g} deg at 30 deg tilt (95 % bound; typical "
-            f"{typ_level:.2g} / {typ_tilt:.2g} deg; 60 deg inclination)")
+        return (f"predicted heading error p95: {format_bound(level)} level (95 % bound; typical {format_bound(typ_level)}); "
+                "at 30 deg tilt not determined: the data leave the vertical terms free")
+    return (f"predicted heading error p95: {format_bound(level)} level, {format_bound(tilt)} at 30 deg tilt (95 % bound; "
+            f"typical {format_bound(typ_level)} / {format_bound(typ_tilt)}; 60 deg inclination)")

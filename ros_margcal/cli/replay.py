@@ -28,6 +28,7 @@ import numpy as np
 from ..model.calibration import Calibration
 from ..model.calibration_file import load_calibrations
 from ..model.errors import ConfigError
+from ..model.heading import format_bound
 from ..recordings.read import read_recording
 from ..recordings.recording import drop_zero_rows
 from ..stream.calibrator import SensorCalibrator
@@ -162,12 +163,12 @@ def _format_cal(cal: Calibration) -> str:
 def _heading_lines(st: Status) -> list[str]:
     """The predicted heading error and the partial calibration's parameters, for the final state."""
     out = []
-    if st.heading_p95_level_deg is not None and st.heading_p95_tilt30_deg is not None:
-        out.append(f"    heading error (predicted p95, 95 % bound): {st.heading_p95_level_deg:.2f} deg level, "
-                   f"{st.heading_p95_tilt30_deg:.2f} deg at +-30 deg tilt")
-    if st.heading_typical_level_deg is not None and st.heading_typical_tilt30_deg is not None:
-        out.append(f"    heading error (predicted p95, typical): {st.heading_typical_level_deg:.2f} deg level, "
-                   f"{st.heading_typical_tilt30_deg:.2f} deg at +-30 deg tilt")
+    if st.heading_p95_level_deg is not None or st.heading_p95_tilt30_deg is not None:
+        out.append(f"    heading error (predicted p95, 95 % bound): {format_bound(st.heading_p95_level_deg)} level, "
+                   f"{format_bound(st.heading_p95_tilt30_deg)} at +-30 deg tilt")
+    if st.heading_typical_level_deg is not None or st.heading_typical_tilt30_deg is not None:
+        out.append(f"    heading error (predicted p95, typical): {format_bound(st.heading_typical_level_deg)} level, "
+                   f"{format_bound(st.heading_typical_tilt30_deg)} at +-30 deg tilt")
     if st.updated_parameters:
         seen = "" if st.tilt_seen_deg is None else f" (data tilted up to {st.tilt_seen_deg:.1f} deg)"
         out.append(f"    {'partial' if st.partial else 'MAP'} calibration{seen}: updated {' '.join(st.updated_parameters)}; "

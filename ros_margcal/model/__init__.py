@@ -27,16 +27,19 @@ from .fitting_linear import algebraic, lin_auto, lin_auto_fit, mvee, sphere, sqr
 from .fitting_prior import (
     BROAD_MATRIX_STD, BROAD_OFFSET_STD, UPDATED_VARIANCE_RATIO, PriorFit, broad_prior, fit_with_prior, posterior_at
 )
-from .heading import attitudes, heading_gradient, heading_p95, heading_p95_typical, heading_std_deg, inclination_deg
+from .heading import (
+    attitudes, format_bound, heading_gradient, heading_p95, heading_p95_quantile, heading_p95_typical, heading_std_deg,
+    inclination_deg, inflated, with_offset_noise
+)
 
 __all__ = [
     "BROAD_MATRIX_STD", "BROAD_OFFSET_STD", "LOSSES", "METHODS", "MODELS", "N_PARAMS", "OFF",
     "UPDATED_VARIANCE_RATIO", "Calibration", "CalibrationFileError", "ConfigError", "ConvergenceError",
     "DegenerateDataError", "FitStats", "InputError", "MargCalError", "Prepared", "PriorFit", "RecordingError",
     "abs_model", "algebraic", "as_points", "as_vector3", "attitudes", "broad_prior", "calibration_from_yaml",
-    "calibration_to_yaml", "check_geometry", "check_singular", "finish", "fit", "fit_with_prior",
-    "gn_covariance", "gram", "heading_gradient", "heading_p95", "heading_p95_typical", "heading_std_deg", "inclination_deg",
-    "lin_auto", "lin_auto_fit", "load_calibrations",
-    "mad_sigma", "mvee", "one_line", "pack", "parameter_names", "posterior_at", "prepare", "raw_scale", "residuals", "resjac",
-    "save_calibrations", "solve_spd3", "sphere", "sqrt_pd", "unpack"
+    "calibration_to_yaml", "check_geometry", "check_singular", "finish", "fit", "fit_with_prior", "format_bound",
+    "gn_covariance", "gram", "heading_gradient", "heading_p95", "heading_p95_quantile", "heading_p95_typical",
+    "heading_std_deg", "inclination_deg", "inflated", "lin_auto", "lin_auto_fit", "load_calibrations", "mad_sigma",
+    "mvee", "one_line", "pack", "parameter_names", "posterior_at", "prepare", "raw_scale", "residuals", "resjac",
+    "save_calibrations", "solve_spd3", "sphere", "sqrt_pd", "unpack", "with_offset_noise"
 ]

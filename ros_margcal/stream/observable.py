@@ -23,7 +23,8 @@ and uncertainty). A yaw-only robot thus gets its horizontal hard iron and 2-D so
 and keeps the vertical terms it had.
 
 **Decision.** The figure that matters is the heading error of what is used at the attitudes the robot
-has: ``model.heading.heading_p95`` from the posterior covariance, at the *tilt seen* (half the 2.5-97.5
+has: ``model.heading.heading_p95_quantile`` from the posterior covariance (with the slow noise the offset
+absorbs, ``with_offset_noise``), at the *tilt seen* (half the 2.5-97.5
 percentile spread of the calibrated field's elevation over the series: roll and pitch of ``±a`` move the
 elevation by up to ``±a``) and the field inclination seen (``heading.inclination_deg``, z axis up on
 average). A partial calibration is published when that figure is at most ``max_heading_p95_deg`` and the
@@ -82,7 +83,15 @@ from ..model.errors import MargCalError
 from ..model.fitting_core import parameter_names
 from ..model.fitting_gyro import GyroBlocks
 from ..model.fitting_prior import broad_prior, fit_with_prior, posterior_at
-from ..model.heading import heading_p95, heading_p95_typical, inclination_deg
+from ..model.heading import (
+    UNORDERED_SD_FACTOR,
+    format_bound,
+    heading_p95_quantile,
+    heading_p95_typical,
+    inclination_deg,
+    inflated,
+    with_offset_noise,
+)
 from .config import PipelineConfig, guard_rails
 
 __all__ = ["AZIMUTH_SECTORS", "DEFAULT_INCLINATION_DEG", "NEAR_LEVEL_NORM_REL_STD", "NEAR_LEVEL_TILT_DEG", "RING_AXIS_MAX_DEG",
@@ -259,8 +268,8 @@ def _inclination(cfg: PipelineConfig, cal: Calibration, raw: Array | None) -> fl
 
 
 def _figures(cal: Calibration, inc: float) -> HeadingFigures:
-    return HeadingFigures(heading_p95(cal, tilt_deg=0.0, inclination=inc),
-                          heading_p95(cal, tilt_deg=30.0, inclination=inc), inc, cal)
+    return HeadingFigures(heading_p95_quantile(cal, tilt_deg=0.0, inclination=inc),
+                          heading_p95_quantile(cal, tilt_deg=30.0, inclination=inc), inc, cal)
 
 
 def heading_figures(cal: Calibration, points: Array, cfg: PipelineConfig) -> tuple[HeadingFigures, Calibration] | None:
@@ -269,7 +278,9 @@ def heading_figures(cal: Calibration, points: Array, cfg: PipelineConfig) -> tup
     try:
         cov_cal = cal
         if cal.covariance is None or tuple(cal.parameter_names) != SYM_NAMES:
-            cov_cal = posterior_at(points, cal, broad_prior(points, cal.norm))
+            # the buffer has no time order: its slow noise counts as independent samples and the covariance is too
+            # small (model.heading: UNORDERED_SD_FACTOR, chosen on the bound benchmark's tuning seeds)
+            cov_cal = inflated(posterior_at(points, cal, broad_prior(points, cal.norm)), UNORDERED_SD_FACTOR)
         return _figures(cov_cal, float(cfg.heading_inclination_deg or DEFAULT_INCLINATION_DEG)), cov_cal
     except (MargCalError, ValueError, ArithmeticError):
         return None
@@ -340,20 +351,23 @@ def partial_fit(series: Array, prior: Calibration | None, cfg: PipelineConfig, *
                                  azimuth=azimuth, sigma=pf.residual_sigma, gyro_explained=pf.gyro_explained,
                                  gyro_used=pf.gyro_used, gyro_frame=pf.gyro_frame, level=pf.level)
         inc = _inclination(cfg, cal, None if rich else series)  # "z up on average" holds for a ring, not a tumble
-        figs = _figures(cal, inc)
-        seen = figs.tilt30_deg if rich else heading_p95(cal, tilt_deg=tilt, inclination=inc)
+        sigma = pf.residual_sigma
+        # slow noise longer than the series, which the offset absorbs and no residual shows (model.heading)
+        bounded = with_offset_noise(cal, sigma) if sigma is not None and math.isfinite(sigma) and sigma >= 0 else cal
+        figs = _figures(bounded, inc)
+        seen = figs.tilt30_deg if rich else heading_p95_quantile(bounded, tilt_deg=tilt, inclination=inc)
     except (MargCalError, ValueError, ArithmeticError) as exc:
         return PartialResult(None, (), SYM_NAMES, kind, math.nan, math.inf, None, f"partial fit failed: {exc}")
     limit = cfg.early_heading_p95_deg if rich else cfg.max_heading_p95_deg
     reason, over = "", None
     if not seen <= limit:
         where = "at 30 deg tilt" if rich else f"at the tilt seen ({tilt:.1f} deg)"
-        reason = (f"partial fit: predicted heading error {seen:.2f} deg p95 {where} > {limit:g} deg" if math.isfinite(seen)
+        reason = (f"partial fit: predicted heading error p95 {where} {format_bound(seen)} > {limit:g} deg" if math.isfinite(seen)
                   else f"partial fit: predicted heading error {where} not determined (no finite covariance)")
         over = limit
     elif current_heading is not None and not seen < current_heading:
-        reason = (f"partial refit: predicted heading error {seen:.2f} deg p95 not below the current "
-                  f"calibration's {current_heading:.2f} deg")
+        reason = (f"partial refit: predicted heading error p95 {format_bound(seen)} not below the current "
+                  f"calibration's {format_bound(current_heading)}")
     else:
         # a partial refit replaces a partial calibration on its predicted heading (above), not on the
         # residual of the last few seconds, which noise decides as often as the data

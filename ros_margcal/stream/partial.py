@@ -47,6 +47,7 @@ from ..model.calibration import Calibration
 from ..model.fitting_geometric import block_means
 from ..model.fitting_gyro import MIN_EXPLAINED, gyro_blocks
 from ..model.fitting_level import LEVEL_TILT_STD_DEG
+from ..model.heading import format_bound
 from .config import PipelineConfig
 from .observable import (
     AZIMUTH_SECTORS,
@@ -306,7 +307,7 @@ class PartialCalibration:
             self._partial_growth = self.REFIT_GROWTH  # a refit once the series grew by this share (module docstring)
             self._figures = res.figures
             return (f"; partial: updated {','.join(res.updated) or 'none'}, from the {res.prior_kind} prior "
-                    f"{','.join(res.from_prior) or 'none'}; heading p95 {res.heading_seen_deg:.2f} deg at the tilt seen "
+                    f"{','.join(res.from_prior) or 'none'}; heading p95 {format_bound(res.heading_seen_deg)} at the tilt seen "
                     f"({res.tilt_seen_deg:.1f} deg){_level_note(res)}")
         self._partial, self._partial_note = None, ""
         got = job.get("figures")
@@ -331,8 +332,9 @@ class PartialCalibration:
             out += f"; partial: updated {','.join(p.updated)}, from prior {','.join(p.from_prior) or 'none'}{_level_note(p)}"
         f = self._figures
         if f is not None and self._cal is not None:
-            out += (f"; heading p95 {f.level_deg:.2f} deg level, {f.tilt30_deg:.2f} deg at 30 deg tilt (predicted 95 % bound; "
-                    f"typical {f.level_typical_deg:.2f} / {f.tilt30_typical_deg:.2f} deg)")
+            out += (f"; heading p95 {format_bound(f.level_deg)} level, {format_bound(f.tilt30_deg)} at 30 deg tilt "
+                    f"(predicted 95 % bound; typical {format_bound(f.level_typical_deg)} / "
+                    f"{format_bound(f.tilt30_typical_deg)})")
         g = self._gyro_share if self._gyro_applies() else math.nan
         if math.isfinite(g) and self._gyro_frame:
             out += (f"; gyro not used: the rate accounts for {100 * g:.0f} % of the field's turning as it comes, far "
@@ -361,8 +363,8 @@ class PartialCalibration:
             "partial": p is not None and cal is not None and bool(p.from_prior),
             "updated_parameters": tuple(p.updated) if (p is not None and cal is not None) else (),
             "prior_parameters": tuple(p.from_prior) if (p is not None and cal is not None) else (),
-            "heading_p95_level_deg": None if (f is None or cal is None) else f.level_deg,
-            "heading_p95_tilt30_deg": None if (f is None or cal is None) else f.tilt30_deg,
+            "heading_p95_level_deg": None if (f is None or cal is None or not math.isfinite(f.level_deg)) else f.level_deg,
+            "heading_p95_tilt30_deg": None if (f is None or cal is None or not math.isfinite(f.tilt30_deg)) else f.tilt30_deg,
             "heading_typical_level_deg": None if (f is None or cal is None or not math.isfinite(f.level_typical_deg))
             else f.level_typical_deg,
             "heading_typical_tilt30_deg": None if (f is None or cal is None or not math.isfinite(f.tilt30_typical_deg))

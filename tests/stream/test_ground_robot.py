@@ -71,11 +71,14 @@ def test_a_ground_robot_gets_a_partial_calibration_with_its_heading_error(ground
     assert 0.0 < st.heading_typical_level_deg < st.heading_p95_level_deg  # the median of what the bound bounds
     assert 0.0 < st.heading_typical_tilt30_deg < st.heading_p95_tilt30_deg
     assert "heading p95" in st.message and "typical" in st.message and "updated" in st.message
-    # every published calibration within 5 deg level (this seed: 0.7-1.6 deg); the prediction within a factor 2
+    # every published calibration within 5 deg level (this seed: 0.7-1.6 deg); the 95 % bound holds and stays useful
+    # (the quantile bound with the offset's slow noise is 2-3x the measured p95 at the median: bench_heading_bound.py),
+    # the typical figure within a factor 2
     c = cal.calibration
     measured = [gen.heading_p95(e.calibration.matrix, e.calibration.offset, tr, 0.0) for e in events]
     assert max(measured) <= 2.0
-    assert 0.5 <= st.heading_p95_level_deg / measured[-1] <= 2.0
+    assert 1.0 <= st.heading_p95_level_deg / measured[-1] <= 4.0
+    assert 0.5 <= st.heading_typical_level_deg / measured[-1] <= 2.0
     assert st.heading_p95_level_deg <= 2.5  # published under the 2.5 deg rule at the tilt seen (level is lower)
     assert 2.0 <= tilt_seen_deg(c, ground["xyz"][::10]) <= 6.0 and st.tilt_seen_deg is not None
     # the keys of /calib/status

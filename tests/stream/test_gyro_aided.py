@@ -55,7 +55,8 @@ def test_with_a_gyro_a_ring_determines_every_parameter(ring: dict[str, Any], alo
     assert _p95(ring, c, 0.0) < 0.5
     # the predicted figures follow: the 30 deg one is the data's now, not the broad prior's
     assert st.heading_p95_tilt30_deg is not None and ref.heading_p95_tilt30_deg is not None
-    assert st.heading_p95_tilt30_deg < 0.3 * ref.heading_p95_tilt30_deg
+    # predicted too (the offset's slow noise, model.heading.with_offset_noise, adds the same to both: 0.31 here)
+    assert st.heading_p95_tilt30_deg < 0.4 * ref.heading_p95_tilt30_deg
     assert 0.5 < st.heading_p95_tilt30_deg / _p95(ring, c, 30.0) < 4.0
 
 
