@@ -40,8 +40,9 @@ direction buffer, ``fitting_prior.posterior_at`` under white noise) is too small
 error ``delta^T C^-1 delta`` has a median of 23-29 where 9 parameters give 8.3 (9.5 for the time-ordered MAP fits
 of a ground robot), as slow (AR(1)) sensor noise shared by neighbouring samples counts as independent.
 ``inflated(cal, UNORDERED_SD_FACTOR)`` scales such a covariance by a fixed standard-deviation factor, chosen on
-the benchmark's tuning seeds as the smallest that covers 95 % there. The time-ordered MAP fit models that noise itself (``fitting_noise``, with the small-sample
-bias of a short series' autocorrelation modelled) and needs no factor once its series is long.
+the benchmark's tuning seeds as the smallest that covers 95 % there. The time-ordered MAP fit models that noise
+itself (``fitting_noise``, with the small-sample bias of a short series' autocorrelation modelled) and needs no
+factor once its series is long.
 
 **Slow noise the offset absorbs.** Noise slower than the series (a sensor's 1/f drift over a fit's first
 seconds) is a near-constant shift of every raw axis: it is indistinguishable from the offset, the fit takes it
