@@ -149,7 +149,8 @@ def near_level(gen: Any, quick: bool, fresh: bool = False) -> None:
                 med = {k: (float(np.median(v[ok])) if ok.any() else np.nan) for k, v in col.items()}
                 n_pub = int(col["n"].sum())
                 worst = np.nanmax(col['worst']) if ok.any() else np.nan
-                print(f"  {name:9s} {'level' if mount else 'drawn':>6s} {'yes' if gyro else 'no':>4s} {ok.sum():4d}/{len(seeds):<5d} "
+                mount_word, gyro_word = "level" if mount else "drawn", "yes" if gyro else "no"
+                print(f"  {name:9s} {mount_word:>6s} {gyro_word:>4s} {ok.sum():4d}/{len(seeds):<5d} "
                       f"{med['first']:8.0f} {worst:9.2f} {int(col['over5'].sum()):6d} "
                       f"{int(col['covered'].sum()):5d}/{n_pub:<6d} {med['level']:8.2f}/{med['level_pred']:<9.2f} "
                       f"{med['tilt30']:8.2f}/{med['tilt30_pred']:<8.2f} {med['own']:11.2f}")
