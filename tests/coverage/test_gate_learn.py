@@ -22,7 +22,7 @@ def _rest(noise: float, seconds: float = 30.0, seed: int = 5) -> tuple[np.ndarra
 
 def _emitted(gate: InactivityGate | GyroAidedGate, t: np.ndarray, xyz: np.ndarray, gyro: bool = False) -> int:
     n = 0
-    for ti, v in zip(t, xyz):
+    for ti, v in zip(t, xyz, strict=True):
         n += gate.push(ti, v, np.zeros(3) if gyro else None) is not None
     return n
 
