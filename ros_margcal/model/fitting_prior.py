@@ -299,7 +299,9 @@ def fit_with_prior(points: ArrayLike, prior: Calibration, *, sigma: float | None
     if isinstance(term, GyroTerm):
         share_g = explained(term.blocks, term.residuals(theta)[0])
         frame = frame_check(term.blocks, *unpack(theta[:9], "sym"))[0]
-        if (not share_g >= MIN_EXPLAINED or frame) and start is not None:
+        # a gyro that explains the turn is kept, whatever another axis order would explain on top (a car's small roll
+        # and pitch rates leave x and y nearly interchangeable): only a gyro below MIN_EXPLAINED is judged by the frame
+        if not share_g >= MIN_EXPLAINED and start is not None:
             # a given start (a stream's previous solution) may be the ring's mirror centre, where a right gyro
             # turns the field the wrong way: every default start once more before the gyro is blamed
             again = fit_with_prior(points, prior, sigma=sigma, inflate=inflate, max_iter=max_iter, stamp=stamp,
@@ -307,10 +309,12 @@ def fit_with_prior(points: ArrayLike, prior: Calibration, *, sigma: float | None
                                    gyro_scale_std=gyro_scale_std, level=level)
             if again.gyro_used:
                 return again
-        if not share_g >= MIN_EXPLAINED or frame:  # rate and reading in different frames: the magnetometer alone
+        if not share_g >= MIN_EXPLAINED:  # rate and reading in different frames: the magnetometer alone
+            # held level only when the gyro is known to be in another frame (named): a gyro in the right frame that
+            # does not explain the turn yet (a few blocks) must not let the level assumption publish for it
             alone = fit_with_prior(points, prior, sigma=sigma, inflate=inflate, max_iter=max_iter, stamp=stamp,
                                    time_ordered=time_ordered, norm_rel_std=norm_rel_std, start=start, spread=spread,
-                                   level=level)
+                                   level=level and bool(frame))
             # the frame judged again at the magnetometer's own solution, which the wrong rates did not pull
             frame = frame_check(term.blocks, alone.calibration.offset, alone.calibration.matrix)[0]
             return dataclasses.replace(alone, gyro_explained=share_g, gyro_frame=frame)
