@@ -12,8 +12,8 @@ Topics (defaults, all remappable; REP-145 names, REP-103 units):
   with the rate received and the callback times; also on ``/diagnostics`` when ``publish_diagnostics``),
   and the current calibration on ``/calib/mag`` and ``/calib/accel`` (std_msgs/String with the
   ``ros__parameters`` YAML, transient-local so late joiners get it), and with ``publish_markers`` the live
-  view on ``/calib/markers`` (visualization_msgs/MarkerArray, every status period: buffered samples,
-  covered bins, the fitted ellipsoid, coloured by state; ``markers.py``) for RViz.
+  view on ``/calib/markers`` (visualization_msgs/MarkerArray, every status period while someone subscribes:
+  buffered samples, covered bins, the fitted ellipsoid, coloured by state; ``markers.py``) for RViz.
 
 Services (std_srvs/Trigger): ``~/reset`` (forget samples and calibrations), ``~/save`` (write the
 calibration file now), ``~/refit`` (validate and fit now; the validator and guard rails still decide).
@@ -309,8 +309,7 @@ class MargCalNode(Node):
                                      "starting the calibration worker", 0.0, 0, 0, 0)
             self._pub_cal[s] = self.create_publisher(String, f"/calib/{s}", latched)
         markers = bool(self.get_parameter("publish_markers").value)
-        self._worker = CalibrationWorker(self._specs(), validator, float(self.get_parameter("status_period_s").value),
-                                         views=markers)
+        self._worker = CalibrationWorker(self._specs(), validator, float(self.get_parameter("status_period_s").value))
         self._pub_markers = self.create_publisher(MarkerArray, "/calib/markers", 1) if markers else None
         self._worker_started = time.monotonic()
         sensor_qos = QoSProfile(depth=int(self.get_parameter("queue_depth").value), history=HistoryPolicy.KEEP_LAST,
@@ -642,7 +641,7 @@ class MargCalNode(Node):
 
     def _publish_markers(self, views: dict[str, Any]) -> None:
         """The worker's views as one MarkerArray, each sensor in its frame (RViz's fixed frame: the sensor's)."""
-        if self._pub_markers is None or not self._pub_markers.get_subscription_count():
+        if self._pub_markers is None:
             return
         out = MarkerArray()
         stamp = self.get_clock().now().to_msg()
@@ -653,6 +652,8 @@ class MargCalNode(Node):
 
     def _publish_status(self) -> None:
         self._check_worker()
+        if self._pub_markers is not None and self._pub_markers.get_subscription_count():
+            self._worker.want_view()  # built in the worker only while someone looks: the answer comes to the pump
         now = time.monotonic()
         stale = float(self.get_parameter("stale_timeout_s").value)
         arr = DiagnosticArray(header=Header(stamp=self.get_clock().now().to_msg(), frame_id=""))

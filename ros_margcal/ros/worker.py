@@ -14,7 +14,8 @@ the Imu rate nearest in stamp (``pairing.RatePairing``).
 - ``("calibration", sensor, Calibration | None)``: the current calibration changed (a fit, a reset);
 - ``("event", Event)``: what ``push`` and ``refit`` reported;
 - ``("status", {sensor: Status})``: at most every ``status_period_s`` and after each command;
-- ``("view", {sensor: CoverageView})``: with each status when ``views`` (the node's RViz markers);
+- ``("view", {sensor: CoverageView})``: the answer to ``want_view`` (the node's RViz markers, asked for only while
+  someone subscribes to them);
 - ``("reply", request_id, success, message)``: the answer to a ``request``;
 - ``("error", text)``: an exception in the worker, which goes on with the next message.
 
@@ -63,9 +64,7 @@ def _context() -> Any:
 class _Calibrators:
     """The worker's side: one ``SensorCalibrator`` per sensor, the rate pairing, what was last sent."""
 
-    def __init__(self, specs: dict[str, tuple[PipelineConfig, Calibration | None]], validator: Any, outbox: Any,
-                 views: bool = False) -> None:
-        self.views = views
+    def __init__(self, specs: dict[str, tuple[PipelineConfig, Calibration | None]], validator: Any, outbox: Any) -> None:
         self.cals = {s: SensorCalibrator(s, cfg, calibration=cal, validator=validator) for s, (cfg, cal) in specs.items()}
         self.pairing = RatePairing(GYRO_PAIR_S)
         self.outbox = outbox
@@ -111,8 +110,9 @@ class _Calibrators:
 
     def status(self) -> None:
         self.outbox.put(("status", {s: c.status() for s, c in self.cals.items()}))
-        if self.views:
-            self.outbox.put(("view", {s: coverage_view(c) for s, c in self.cals.items()}))
+
+    def view(self) -> None:
+        self.outbox.put(("view", {s: coverage_view(c) for s, c in self.cals.items()}))
 
     def command(self, kind: str, args: tuple[Any, ...]) -> tuple[bool, str]:
         if kind == "configure":
@@ -148,11 +148,11 @@ class _Calibrators:
 
 
 def serve(inbox: Any, outbox: Any, specs: dict[str, tuple[PipelineConfig, Calibration | None]], validator: Any,
-          status_period_s: float, views: bool = False) -> None:
+          status_period_s: float) -> None:
     """The worker process: take samples and commands from ``inbox`` until ``stop`` (see the module docstring)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole process group: the node stops us
     parent = multiprocessing.parent_process()  # the node's process (with forkserver too), via its sentinel
-    cals = _Calibrators(specs, validator, outbox, views)
+    cals = _Calibrators(specs, validator, outbox)
     cals.status()
     next_status = time.monotonic() + status_period_s
     while True:
@@ -170,6 +170,8 @@ def serve(inbox: Any, outbox: Any, specs: dict[str, tuple[PipelineConfig, Calibr
                 return
             if kind == "samples":
                 cals.samples(msg[1])
+            elif kind == "view":
+                cals.view()
             elif kind == "request":
                 _, command, request_id, args = msg
                 ok, text = cals.command(command, args)
@@ -194,13 +196,11 @@ class CalibrationWorker:
         specs: per sensor, its options and the calibration to start from (None: uncalibrated).
         validator: the validator object (None: the shipped one).
         status_period_s: how often the worker sends the status.
-        views: send a ``CoverageView`` per sensor with each status (the node's markers).
     """
 
     def __init__(self, specs: dict[str, tuple[PipelineConfig, Calibration | None]], validator: Any,
-                 status_period_s: float, views: bool = False) -> None:
+                 status_period_s: float) -> None:
         self._ctx = _context()
-        self._views = bool(views)
         self._validator = validator
         self._period = float(status_period_s)
         self._requests = 0
@@ -211,7 +211,7 @@ class CalibrationWorker:
         self._inbox = self._ctx.Queue()
         self._outbox = self._ctx.Queue()
         self._proc = self._ctx.Process(target=serve, name="margcal-worker", daemon=True,
-                                       args=(self._inbox, self._outbox, specs, self._validator, self._period, self._views))
+                                       args=(self._inbox, self._outbox, specs, self._validator, self._period))
         self._proc.start()
 
     @property
@@ -234,6 +234,10 @@ class CalibrationWorker:
         """Queue samples for the worker (never blocks: the queue's own thread writes them)."""
         if batch:
             self._inbox.put(("samples", batch))
+
+    def want_view(self) -> None:
+        """Ask for one ``view`` message (never blocks)."""
+        self._inbox.put(("view",))
 
     def request(self, kind: str, *args: Any) -> int:
         """Queue a command (``reset``, ``refit``, ``configure``); its request id (the ``reply`` names it)."""
