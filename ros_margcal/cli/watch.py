@@ -150,7 +150,7 @@ def run(args: argparse.Namespace) -> int:
             elif elapsed > args.timeout:
                 break
     except KeyboardInterrupt:
-        pass
+        pass  # Ctrl-C is how a user ends the watch: the status below and exit 0
     finally:
         executor.shutdown()
         node.destroy_node()
