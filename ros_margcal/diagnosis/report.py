@@ -317,5 +317,5 @@ spread over seeds. Equivalent (cannot be told apart): {html.escape(groups)}. Uno
 </body></html>"""
     hpath = out / "report.html"
     _replace_together({jpath: json_text, hpath: body})
-    log.info("wrote %s and %s", jpath, hpath)
+    log.debug("wrote %s and %s", jpath, hpath)  # the command prints it (with the times): once on the console
     return jpath, hpath
