@@ -77,7 +77,7 @@ from ..model.calibration import Calibration
 from ..model.errors import ConfigError
 from ..validation.shipped import default_validator
 from .change import ChangeDetection
-from .config import STATIC_SPREAD, PipelineConfig, relative_spread
+from .config import STATIC_SPREAD, PipelineConfig, raise_hint, relative_spread
 from .evaluation import Evaluation
 from .intake import DROP_REASONS, Intake, Sample, SpikeFilter
 from .status import Event, EventKind, Level, State, Status, pct
@@ -402,7 +402,7 @@ class SensorCalibrator(ChangeDetection, Evaluation):
                 "(static: they fix the field norm only); turn it through all directions")
 
     def _gate_figures(self) -> str:
-        """" (last window CV .. vs .., axis spread .. vs ..; learnt ...)": the gate's last window and its thresholds."""
+        """The gate's last window against its thresholds, `` (last window CV .. vs .., axis spread .. vs ..; learnt)``."""
         cv, axis = self._gate.window_stats
         if not math.isfinite(cv):
             return ""
@@ -444,8 +444,8 @@ class SensorCalibrator(ChangeDetection, Evaluation):
             elif self.kept == 0 and self._gate is not None:
                 msg = (f"collecting: no still sample from the inactivity gate yet: {self.passed} samples reached it; "
                        f"0 of {self.passed} samples still for >= {self._gate.window_s:g} s{self._gate_figures()}: hold "
-                       f"the sensor still in a few poses, or raise gate_cv_threshold for a noisy sensor "
-                       f"(replay/calibrate: --set gate_cv_threshold=...; node: {self.sensor}.gate_cv_threshold)")
+                       f"the sensor still in a few poses, or for a noisy sensor "
+                       f"{raise_hint(self.sensor, 'gate_cv_threshold')}")
             else:
                 msg = f"collecting: {self._last_reason}"
             dropped = sum(self.dropped.values())

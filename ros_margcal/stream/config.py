@@ -408,11 +408,12 @@ def plausibility(cal: Calibration, cfg: PipelineConfig) -> str:
     return ""
 
 
-def raise_hint(sensor: str, name: str) -> str:
-    """"raise NAME (replay/calibrate: --set NAME=...; node: SENSOR.NAME)": how to change the option a message names."""
+def raise_hint(sensor: str, name: str, verb: str = "raise") -> str:
+    """How to change the option a message names: ``raise NAME (replay/calibrate: --set NAME=...; node: SENSOR.NAME)``
+    (``verb``: "raise", "lower"), the one wording of every such advice."""
     if name not in FIELD_SPECS:
         raise ConfigError(f"raise_hint: no option {name!r}")
-    return f"raise {name} (replay/calibrate: --set {name}=...; node: {sensor}.{name})"
+    return f"{verb} {name} (replay/calibrate: --set {name}=...; node: {sensor}.{name})"
 
 
 def _offset_reason(cal: Calibration, cfg: PipelineConfig, off: float, radius: float, limit: float) -> str:

@@ -53,7 +53,7 @@ from typing import Any
 
 import numpy as np
 
-from .config import STATIC_SPREAD, PipelineConfig, relative_spread
+from .config import STATIC_SPREAD, PipelineConfig, raise_hint, relative_spread
 from .units import LEARN_HIGH, LEARN_LOW, RELEARN_FACTOR, RELEARN_SHARE
 
 __all__ = ["DROP_REASONS", "MAX_GYRO_RAD_S", "MAX_STAMP_S", "Intake", "Sample", "SpikeFilter"]
@@ -293,7 +293,7 @@ class Intake:
                     else f"the limits are relearnt once {RELEARN_SHARE:.0%} of the last {self._window_n} samples fall "
                          "outside them")
         else:
-            where = f"{bound}_magnitude: replay/calibrate --set {cfg.sensor}.{bound}_magnitude=..."
+            where = raise_hint(cfg.sensor, f"{bound}_magnitude", "raise" if bound == "max" else "lower")
             hint = f"set the raw unit: --unit in margcal replay and calibrate, {cfg.sensor}.unit in the node"
         last = self.last_norms.get(worst)
         if worst == "magnitude" and last is not None:
@@ -303,7 +303,7 @@ class Intake:
             return f"{head}: {n} all-zero rows (0, 0, 0): no reading, dropped"
         if worst == "zero" and last is not None:
             zeros = f", {self.zero_rows} of them all-zero rows" if self.zero_rows else ""
-            return (f"{head}: {n} x |v| at or below the limit{zeros}, last non-zero |v| <= {lo:.4g} {cfg.unit} "
+            return (f"{head}: {n} x |v| at or below the limit{zeros}, last non-zero |v| = {last:.4g} <= {lo:.4g} {cfg.unit} "
                     f"({where}); {hint}")
         return f"{head}: {n} x {worst}"
 
