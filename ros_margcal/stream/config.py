@@ -374,9 +374,20 @@ def guard_rails(cal: Calibration, cfg: PipelineConfig, recent: NDArray[np.float6
     if current is not None and len(recent) >= 3:
         new_rms, cur_rms = rms_relative(cal, recent), rms_relative(current, recent)
         if new_rms > cur_rms * (1.0 + cfg.not_worse_tolerance):
+            new_text, cur_text = _apart(100 * new_rms, 100 * cur_rms)
             return (f"worse than the current calibration on the last {len(recent)} samples "
-                    f"({100 * new_rms:.2f} % vs {100 * cur_rms:.2f} %)")
+                    f"({new_text} % vs {cur_text} %)")
     return ""
+
+
+def _apart(a: float, b: float) -> tuple[str, str]:
+    """``a`` and ``b`` with the fewest significant digits (3 to 8) that tell them apart: a comparison that failed
+    shows why ("0.54124 % vs 0.54117 %", not "0.54 % vs 0.54 %")."""
+    for digits in range(3, 9):
+        sa, sb = f"{a:.{digits}g}", f"{b:.{digits}g}"
+        if sa != sb:
+            break
+    return sa, sb
 
 
 def plausibility(cal: Calibration, cfg: PipelineConfig) -> str:

@@ -7,10 +7,12 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from ros_margcal.model.errors import ConfigError
 from ros_margcal.stream.calibrator import SensorCalibrator
-from ros_margcal.stream.config import FIELD_SPECS, PipelineConfig
+from ros_margcal.stream.config import FIELD_SPECS, PipelineConfig, _apart
 from ros_margcal.validation.shipped import FallbackValidator
 
 FIELDS = [f.name for f in dataclasses.fields(PipelineConfig)]
@@ -132,3 +134,13 @@ def test_numbers_of_either_python_type_are_accepted() -> None:
     cfg = PipelineConfig.for_sensor("mag", max_rate_hz=100, max_predicted_error=None, gate_gyro_threshold=0.5)
     assert cfg.min_period_s == pytest.approx(0.01)
     assert PipelineConfig.for_sensor("mag", "counts").norm_max == math.inf  # unknown unit: no field-strength check
+
+
+@given(st.floats(1e-6, 1e3), st.floats(1e-6, 0.5))
+def test_a_failed_comparison_prints_numbers_that_differ(a: float, rel: float) -> None:
+    """``_apart`` (the 'worse than the current calibration' message): two numbers that differ by at least 1e-6
+    relative are printed differently ("0.54124 % vs 0.54117 %", never "0.54 % vs 0.54 %"), each a float again."""
+    b = a * (1.0 + rel)
+    sa, sb = _apart(a, b)
+    assert sa != sb
+    assert float(sa) <= float(sb)
