@@ -20,7 +20,9 @@ setup(
         (f"share/{PACKAGE}/msg_configs", glob("msg_configs/*.yaml") + glob("msg_configs/*.json")),
         (f"share/{PACKAGE}/launch", glob("launch/*.launch.py")),
     ],
-    install_requires=["setuptools", "numpy>=1.24", "scipy>=1.10", "PyYAML>=6", "rosbags>=0.10", "matplotlib>=3.6", "tqdm>=4.60"],
+    install_requires=["setuptools", "numpy>=1.24", "scipy>=1.10", "PyYAML>=6", "rosbags>=0.10", "matplotlib>=3.6", "tqdm>=4.60",
+                      # the WMM field at a position (model/geomag.py; imported only where used: an apt Jazzy may lack it)
+                      "pygeomag>=1.1"],
     extras_require={
         "test": ["pytest>=7", "hypothesis>=6"],
         "dev": ["ruff", "mypy"],

@@ -26,6 +26,11 @@ yaw, level and with roll/pitch in {-30, 0, 30} deg, tilt compensation with the t
   heading p95; for the jump, the time after it until a published calibration is within 5 deg again.
 - ``accel``: 2.5 s moves and 1.5 s rests at 100 Hz for 60 s, with and without a gyro: samples kept,
   calibrated or not, the status message.
+- ``--field-model LAT,LON`` (issue 28): the ground robot at 5 deg tilt in the World Magnetic Model's field at that
+  position (``model/geomag.py``, mid-2026), each seed once without a reference norm and once with the model's
+  (``PipelineConfig.at_position``: the norm and the heading figures' inclination), and once more with the true
+  field ``--model-error`` per cent stronger than the model says (a local anomaly): the final 30 deg p95, and the
+  worst 30 deg p95 of every published calibration, median and worst over the seeds; tuning and held-out seeds apart.
 
 Runs on any version of the package (new status fields are read with ``getattr``), so the figures of the
 starting commit can be measured with ``PYTHONPATH=<old checkout> python scripts/bench_ground_robot.py``.
@@ -42,6 +47,7 @@ from typing import Any
 import numpy as np
 from study_ground_robot import independent_generator  # scripts/ is on the path when a script in it runs
 
+from ros_margcal.model.geomag import field_at
 from ros_margcal.stream.calibrator import EventKind, PipelineConfig, SensorCalibrator
 
 TUNING = (1, 2, 3, 11, 12, 13)
@@ -66,8 +72,10 @@ OVERRIDES: dict[str, Any] = {}
 """Options of the magnetometer calibrator (``--set name=value``)."""
 
 
-def _run(rec: dict[str, Any], sensor: str = "mag", gyro: bool = False) -> tuple[SensorCalibrator, list[Any]]:
-    cal = SensorCalibrator(sensor, PipelineConfig.for_sensor(sensor, **OVERRIDES) if sensor == "mag" else None)
+def _run(rec: dict[str, Any], sensor: str = "mag", gyro: bool = False,
+         position: dict[str, float] | None = None) -> tuple[SensorCalibrator, list[Any]]:
+    opts = {**OVERRIDES, **(position or {})}
+    cal = SensorCalibrator(sensor, PipelineConfig.for_sensor(sensor, **opts) if sensor == "mag" else None)
     events = []
     use = (gyro or (sensor == "mag" and MAG_GYRO)) and rec.get("gyro") is not None
     g = rec["gyro"].tolist() if use else [None] * len(rec["t"])
@@ -201,6 +209,52 @@ def ground(gen: Any, quick: bool, seconds: float, fresh: bool = False) -> None:
           "   median ratio to the measured p95 over the seeds; typ in 2x: seeds where it is within a factor 2 of the measured)")
 
 
+FIELD_YEAR = 2026.5
+"""The date the model field is evaluated at (``--field-model``): fixed, so a rerun measures the same field."""
+
+
+def field_model_case(gen: Any, seed: int, seconds: float, lat: float, lon: float, error_pct: float) -> dict[str, float]:
+    """One ground robot at 5 deg tilt in the model field at (lat, lon), true field ``error_pct`` % stronger than the
+    model: final and worst published 30 deg p95 without a norm ('none'), with the model's ('model'), and with the model's
+    while the field is off ('off')."""
+    f = field_at(lat, lon, 0.0, FIELD_YEAR)
+    position = {"latitude_deg": lat, "longitude_deg": lon, "field_year": FIELD_YEAR}
+    out: dict[str, float] = {}
+    for key, strength, pos in (("none", 1.0, None), ("model", 1.0, position), ("off", 1.0 + error_pct / 100.0, position)):
+        rec = gen.generate("mag", "ground", duration_s=seconds, rate_hz=50.0, seed=seed, tilt_deg=5.0,
+                           symmetric_soft_iron=True, hard_iron_mag=30e-6, gyro_scale=GYRO_SCALE, soft_iron=SOFT_IRON,
+                           field_uT=f.intensity_t * 1e6 * strength, inclination_deg=f.inclination_deg,
+                           declination_deg=f.declination_deg)
+        cal, events = _run(rec, position=pos)
+        tr, c = rec["truth"], cal.calibration
+        out[f"{key}_end"] = _p95(gen, c, tr, 30.0) if c is not None else np.nan
+        out[f"{key}_worst"] = max((_p95(gen, e.calibration, tr, 30.0) for e in events), default=np.nan)
+    return out
+
+
+def field_model(gen: Any, quick: bool, seconds: float, where: str, error_pct: float) -> None:
+    """The ground robot at 5 deg tilt without a reference norm, with the model's, and with the model's when the true
+    field is ``error_pct`` % off (issue 28)."""
+    lat, lon = (float(x) for x in where.split(","))
+    f = field_at(lat, lon, 0.0, FIELD_YEAR)
+    print(f"ground robot at 5 deg tilt, {seconds:.0f} s at 50 Hz, 30 uT hard iron, in the {f.describe()}; "
+          f"30 deg heading p95 (deg): final calibration median / worst over the seeds, worst published")
+    print(f"  {'seeds':9s} {'n':>3s} {'no norm: end med/max':>21s} {'worst pub':>9s} {'model: end med/max':>19s} "
+          f"{'worst pub':>9s} {f'field {error_pct:+g} %: end med/max':>24s} {'worst pub':>9s}")
+    for name, seeds in (("tuning", TUNING), ("held-out", HELD_OUT)):
+        seeds = seeds[:2] if quick else seeds
+        rows = [field_model_case(gen, s, seconds, lat, lon, error_pct) for s in seeds]
+        col = {k: np.array([r[k] for r in rows]) for k in rows[0]}
+        cells = []
+        for key in ("none", "model", "off"):
+            end, worst = col[f"{key}_end"], col[f"{key}_worst"]
+            n_cal = int(np.isfinite(end).sum())
+            cells.append(f"{np.nanmedian(end) if n_cal else np.nan:9.2f}/{np.nanmax(end) if n_cal else np.nan:<6.2f} "
+                         f"({n_cal}) {np.nanmax(worst) if n_cal else np.nan:9.2f}")
+        print(f"  {name:9s} {len(seeds):3d} {cells[0]:>31s} {cells[1]:>29s} {cells[2]:>34s}")
+    print("  ((n): seeds calibrated at the end; worst pub: the worst 30 deg p95 of any calibration published on the way)")
+
+
 def rich(gen: Any, quick: bool) -> None:
     seeds = (1, 2, 3) if quick else (1, 2, 3, 4, 5, 6, 7, 8)
     first, good, wrong = [], [], 0
@@ -285,6 +339,11 @@ def main(argv: list[str] | None = None) -> int:
                    help="the generator's gyro sensitivity errors per axis, U(-S, S) (0.03: a MEMS data sheet's +-3 %%)")
     p.add_argument("--soft-iron", type=float, default=0.05, metavar="S",
                    help="the generator's soft-iron amplitude on the ground robot (default 0.05, a few per cent)")
+    p.add_argument("--field-model", metavar="LAT,LON", default=None,
+                   help="the ground robot at 5 deg tilt in the WMM field at LAT,LON, without and with the model's norm "
+                        "(e.g. 48.1,11.6); runs only this group")
+    p.add_argument("--model-error", type=float, default=2.0, metavar="PCT",
+                   help="--field-model: the true field this many per cent stronger than the model in the last column")
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                    help="a magnetometer option, e.g. max_heading_p95_deg=2.5 (a number or true/false)")
     args = p.parse_args(argv)
@@ -297,6 +356,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.gyro:
         print("the magnetometer calibrator gets the gyro rates (gyro-aided partial fit); generator gyro scale errors "
               f"U(-{args.gyro_scale:g}, {args.gyro_scale:g}) per axis")
+    if args.field_model is not None:
+        field_model(gen, args.quick, args.seconds, args.field_model, args.model_error)
+        return 0
     if args.only in (None, "ground"):
         ground(gen, args.quick, args.seconds, args.fresh)
     if args.only in (None, "near-level"):

@@ -11,7 +11,7 @@ import pytest
 import ros_margcal
 
 ROOT = Path(ros_margcal.__file__).resolve().parent
-OPTIONAL = {"rosbags", "matplotlib", "ament_index_python", "rclpy", "builtin_interfaces", "diagnostic_msgs", "geometry_msgs",
+OPTIONAL = {"rosbags", "matplotlib", "pygeomag", "ament_index_python", "rclpy", "builtin_interfaces", "diagnostic_msgs", "geometry_msgs",
             "sensor_msgs", "std_msgs"}
 """Imported where they are used, with a comment saying why: none is needed by the online core."""
 

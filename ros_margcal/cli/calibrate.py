@@ -27,7 +27,9 @@ search and the calibration's stamp (``recordings.continue_clock``). ``--norm`` m
 (``raw_units``); all-zero rows are dropped and counted. Whatever is fitted passes the stream's guard
 rails before it is written (``calibrate_guard``): otherwise nothing is written and the exit code is
 ``EXIT_REFUSED`` (4); ``--force`` writes it with the reason in its ``method``. ``--set KEY=VALUE`` sets the
-options the guard rails, the gate and the fit use (``CALIBRATE_OPTIONS``; ``set_option``). Exit codes:
+options the guard rails, the gate and the fit use (``CALIBRATE_OPTIONS``; ``set_option``). ``--lat --lon``
+take a magnetometer's norm (unless ``--norm``) and the heading figures' inclination from the World Magnetic
+Model at that position (``position``). Exit codes:
 0 written, 2 bad input, 3 nothing to fit (static, too few samples), 4 refused by the guard rails.
 """
 
@@ -51,7 +53,10 @@ from ..recordings.read import read_recording
 from ..recordings.recording import Recording, continue_clock
 from ..stream.config import PipelineConfig
 from .calibrate_guard import EXIT_REFUSED, forced, norm_source, refusal
-from .fit_rescue import MIN_SCALE, Rescue, check, config_for, heading_text, reading_scale, rescue, residual_note, screen
+from .fit_rescue import (
+    MIN_SCALE, Rescue, check, config_for, heading_text, inclination_of, reading_scale, rescue, residual_note, screen
+)
+from .position import add_position_args, field_line, position_options, radius_note
 from .raw_units import prepare
 from .set_option import SET_HELP, parse_sets, sensor_options
 
@@ -114,6 +119,7 @@ def register(subparsers: Any) -> None:
                    help="raw unit of the recording: T, mT, uT, nT, gauss, mG (mag), m/s^2, g, mg (accel), or counts "
                    "(any other name: not checked); refused when the readings are no Earth field or gravity in it. "
                    "Default: a bag's REP-145 unit (T, m/s^2), a CSV's inferred from the readings' size (said)")
+    add_position_args(p)
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help=SET_HELP)
     p.add_argument("--force", action="store_true",
                    help="write a calibration the guard rails refuse (offset, gains, field norm, uncertainty, predicted "
@@ -247,11 +253,15 @@ def _points(rec: Recording, args: argparse.Namespace, cfg: PipelineConfig) -> tu
 
 
 def _prior_norm(args: argparse.Namespace, cfg: PipelineConfig) -> tuple[float | None, str]:
-    """The norm a fit holds fixed and where it comes from: --norm, gravity in a known unit, else the prior fit's own."""
+    """The norm a fit holds fixed and where it comes from: --norm, gravity in a known unit, the model field at
+    --lat/--lon, else the prior fit's own."""
     if args.norm is not None:
         return args.norm, "given by --norm"
     if cfg.sensor == "accel" and cfg.reference_norm is not None:
         return cfg.reference_norm, f"gravity in {cfg.unit}"
+    field = cfg.field_model()
+    if field is not None and cfg.reference_norm is not None:
+        return cfg.reference_norm, f"{field.model} at --lat/--lon"
     return None, "the readings' sphere radius"
 
 
@@ -266,17 +276,22 @@ def run(args: argparse.Namespace) -> int:
     if idle:
         print(f"note: --set {', '.join(idle)}: streaming option(s) that calibrate does not use (replay does)",
               file=sys.stderr)
-    cfg = config_for(sensor, unit, **overrides)
+    position = position_options(args)
+    used = {k: v for k, v in overrides.items() if not (position and k == "reference_norm")}  # calibrate: --norm only
+    cfg = config_for(sensor, unit, **used, **position)
+    if cfg.field_model() is not None:
+        print(field_line(cfg, norm_given=args.norm is not None))
     points, times, dropped = _points(rec, args, cfg)
     if len(rec) < n_read:
         dropped = {"zero": n_read - len(rec), **dropped}
-    _check_scales(args.norm, args.f_scale, points)
     extra: dict[str, Any] = {"dropped": dropped} if dropped else {}
     model = args.model or _DEFAULT_MODEL.get(args.method, "sym")
     prior_norm, fixed = _prior_norm(args, cfg)
+    norm = args.norm if cfg.sensor == "accel" or cfg.field_model() is None else prior_norm  # the model's for a mag
+    _check_scales(norm, args.f_scale, points)
     iters = {"max_iter": overrides["max_iter"]} if "max_iter" in overrides else {}
     try:
-        cal = fit(points, model=model, method=args.method, norm=args.norm, loss=args.loss, f_scale=args.f_scale,
+        cal = fit(points, model=model, method=args.method, norm=norm, loss=args.loss, f_scale=args.f_scale,
                   sensor=sensor, unit=unit, **iters)  # fmt: skip
         failure = check(cal, cfg)
         high = residual_note(cal, cfg)
@@ -296,6 +311,11 @@ def run(args: argparse.Namespace) -> int:
     if last_stamp is not None:
         cal = cal.replace(stamp=last_stamp)
     _print(cal, str(args.input), n_read, fixed)
+    if cfg.field_model() is not None:
+        extra["field_model"] = field_line(cfg, norm_given=args.norm is not None)
+        note = radius_note(cal, cfg) if args.norm is None else ""
+        if note:
+            print(note, file=sys.stderr)
     return _guarded_write(args, cfg, {sensor: cal}, [{**result_dict(cal, str(args.input), n_read), **extra}])
 
 
@@ -353,7 +373,7 @@ def _report_rescue(res: Rescue, args: argparse.Namespace, cfg: PipelineConfig, n
             print(f"  updated by the data: {', '.join(pf.updated) or 'none'}")
             print(f"  from the prior:      {', '.join(pf.from_prior) or 'none'}")
         if key == "mag":
-            text = heading_text(cal)
+            text = heading_text(cal, inclination_of(cfg))
             if text:
                 print(f"  {text}")
         name = key if k == last else f"{key}_{k + 1}"  # the last calibration is the sensor's current one

@@ -3,7 +3,7 @@
 A batch fit (plain, per side of an offset change, or with the prior) is refused when
 ``stream.config.plausibility`` refuses it (field norm implausible in a known unit, parameter uncertainty,
 offset beyond the limit, axis gains), and a magnetometer's also when its predicted heading error p95,
-level (``model.heading``), exceeds ``max_heading_p95_deg`` or cannot be determined; a magnetometer's
+level (``model.heading``, at the configured inclination: a position's model field, else 60°), exceeds ``max_heading_p95_deg`` or cannot be determined; a magnetometer's
 prior fit (partial by design) is judged by that figure instead of the uncertainty of its prior terms. The command then
 exits ``EXIT_REFUSED`` without writing; ``--force`` writes it, with ``forced`` and the reason in the
 calibration's ``method`` (the file's free-form field; the node shows it) and in the JSON.
@@ -20,7 +20,7 @@ from ..model.calibration import FORCED, Calibration
 from ..model.errors import InputError
 from ..model.heading import format_bound, heading_p95_quantile
 from ..stream.config import PipelineConfig, plausibility
-from .fit_rescue import HEADING_DETERMINED_DEG
+from .fit_rescue import HEADING_DETERMINED_DEG, inclination_of
 
 __all__ = ["EXIT_REFUSED", "forced", "norm_source", "refusal"]
 
@@ -32,7 +32,7 @@ _NO_STD_LIMIT = 10.0  # the largest max_parameter_std (FIELD_SPECS): a partial f
 def _heading(cal: Calibration, cfg: PipelineConfig) -> str:
     """Why the predicted level heading error refuses ``cal`` ("" when within the limit or not computable)."""
     try:
-        level = heading_p95_quantile(cal, tilt_deg=0.0, inclination=60.0)
+        level = heading_p95_quantile(cal, tilt_deg=0.0, inclination=inclination_of(cfg))
     except (InputError, ValueError, np.linalg.LinAlgError):
         return ""  # no covariance over the symmetric model (diag, eye, mvee): plausibility judged it
     if not (math.isfinite(level) and level <= HEADING_DETERMINED_DEG):

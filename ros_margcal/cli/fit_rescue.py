@@ -45,11 +45,12 @@ from ..model.fitting import fit
 from ..model.fitting_prior import PriorFit, broad_prior, fit_with_prior
 from ..model.heading import UNDETERMINED_DEG, format_bound, heading_p95_quantile, heading_p95_typical
 from ..stream.config import STATIC_SPREAD, PipelineConfig, plausibility, relative_spread
+from ..stream.observable import DEFAULT_INCLINATION_DEG
 
 __all__ = [
     "HEADING_DETERMINED_DEG", "MAX_READING", "MIN_SCALE", "SPIKE_GAP", "SPIKE_SHARE", "STATIC_SPREAD", "Part",
     "Rescue", "Screen", "check",
-    "config_for", "heading_text", "reading_scale", "rescue", "screen"
+    "config_for", "heading_text", "inclination_of", "reading_scale", "rescue", "screen"
 ]
 
 MAX_READING = 1e100
@@ -369,15 +370,21 @@ def _change(t: Array | None, pts: Array, failure: str, *, model: str, norm: floa
     return Rescue("change", reason, parts, ch, [f"requested fit: {failure}", reason])
 
 
-def heading_text(cal: Calibration) -> str:
-    """Predicted heading error p95 from the covariance, level and at 30° tilt (60° inclination), as the 95 % bound
-    (``heading.heading_p95_quantile``) and the typical figure (``heading.heading_p95_typical``), or ""; a figure
+def inclination_of(cfg: PipelineConfig | None) -> float:
+    """The inclination of the heading figures: the configured one (a position's model field), else 60° (mid latitudes)."""
+    return DEFAULT_INCLINATION_DEG if cfg is None or cfg.heading_inclination_deg is None else cfg.heading_inclination_deg
+
+
+def heading_text(cal: Calibration, inclination: float = DEFAULT_INCLINATION_DEG) -> str:
+    """Predicted heading error p95 from the covariance, level and at 30° tilt (at ``inclination``, deg), as the 95 %
+    bound (``heading.heading_p95_quantile``) and the typical figure (``heading.heading_p95_typical``), or ""; a figure
     that is not determined says so (``heading.format_bound``)."""
+    inc = float(inclination)
     try:
-        level = heading_p95_quantile(cal, tilt_deg=0.0, inclination=60.0)
-        tilt = heading_p95_quantile(cal, tilt_deg=30.0, inclination=60.0)
-        typ_level = heading_p95_typical(cal, tilt_deg=0.0, inclination=60.0)
-        typ_tilt = heading_p95_typical(cal, tilt_deg=30.0, inclination=60.0)
+        level = heading_p95_quantile(cal, tilt_deg=0.0, inclination=inc)
+        tilt = heading_p95_quantile(cal, tilt_deg=30.0, inclination=inc)
+        typ_level = heading_p95_typical(cal, tilt_deg=0.0, inclination=inc)
+        typ_tilt = heading_p95_typical(cal, tilt_deg=30.0, inclination=inc)
     except (InputError, ValueError, np.linalg.LinAlgError):
         return ""
     if not (math.isfinite(level) and level <= HEADING_DETERMINED_DEG):
@@ -386,4 +393,4 @@ def heading_text(cal: Calibration) -> str:
         return (f"predicted heading error p95: {format_bound(level)} level (95 % bound; typical {format_bound(typ_level)}); "
                 "at 30 deg tilt not determined: the data leave the vertical terms free")
     return (f"predicted heading error p95: {format_bound(level)} level, {format_bound(tilt)} at 30 deg tilt (95 % bound; "
-            f"typical {format_bound(typ_level)} / {format_bound(typ_tilt)}; 60 deg inclination)")
+            f"typical {format_bound(typ_level)} / {format_bound(typ_tilt)}; {inc:.3g} deg inclination)")

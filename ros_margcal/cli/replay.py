@@ -8,6 +8,9 @@ write the timeline and final calibrations as JSON (``--json``) and a coverage pl
 buffered directions as azimuth phi against elevation theta about the calibration centre, the 2D
 projection of Camps et al. 2009, Fig. 5).
 
+``--lat --lon`` give the magnetometer the World Magnetic Model's field at that position: its reference norm
+and the heading figures' inclination (``position``).
+
 ``margcal replay --example`` runs the recording shipped with the package (a tumbling IMU with still
 periods and a hard-iron jump half way, made by ``scripts/make_example.py``) and compares the result
 with its known truth.
@@ -28,6 +31,7 @@ import numpy as np
 from ..model.calibration import Calibration
 from ..model.calibration_file import load_calibrations
 from ..model.errors import ConfigError
+from ..model.geomag import decimal_year
 from ..model.heading import format_bound
 from ..recordings.read import read_recording
 from ..recordings.recording import drop_zero_rows
@@ -37,6 +41,7 @@ from ..stream.replay import replay, replay_plan
 from ..stream.status import Status
 from ..stream.view import coverage_view
 from ..validation.shipped import load_validator
+from .position import add_position_args, field_line, position_options
 from .raw_units import prepare, resolve_unit
 from .set_option import SET_HELP, parse_sets, sensor_options
 
@@ -65,6 +70,7 @@ def register(subparsers: Any) -> None:
                    "inferred from the readings' size (said). In a bag it applies to --sensor, or to the sensor it is a "
                    "unit of (gauss: MagneticField)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help=SET_HELP)
+    add_position_args(p)
     p.add_argument("--truth", type=Path, help="calibration YAML with the true calibrations, to report the error")
     p.add_argument("--status-every", type=float, default=10.0, metavar="S",
                    help="status line every S seconds of recording time (default 10; 0 = events only)")
@@ -194,9 +200,10 @@ def _checked_plan(path: Path, sensor: str | None, unit: str | None,
     return sensor, unit, {name: (s, u) for name, (s, u, _) in plan.items()}
 
 
-def _options(sets: dict[str, dict[str, Any]], plan: dict[str, tuple[str, str]], full_only: bool) -> dict[str, Any]:
-    """The calibrators' options from ``--set`` (and ``--full-only``), checked for every sensor replayed; options for
-    one sensor only need a recording (or ``--sensor``) that replays that sensor alone."""
+def _options(sets: dict[str, dict[str, Any]], plan: dict[str, tuple[str, str]], full_only: bool,
+             position: dict[str, Any]) -> dict[str, Any]:
+    """The calibrators' options from ``--set`` (and ``--full-only``, the ``position``), checked for every sensor
+    replayed; options for one sensor only need a recording (or ``--sensor``) that replays that sensor alone."""
     sensors = sorted({s for s, _ in plan.values()})
     own = [s for s in ("mag", "accel") if sets.get(s)]
     if own and len(sensors) > 1:
@@ -206,8 +213,13 @@ def _options(sets: dict[str, dict[str, Any]], plan: dict[str, tuple[str, str]], 
     options = sensor_options(sets, sensors[0]) if sensors else dict(sets.get("", {}))
     if full_only:
         options["partial_fit"] = False
+    options.update(position)
+    if position and "field_year" not in options:  # one date for the whole replay (and for the line printed)
+        options["field_year"] = decimal_year()
     for s, u in plan.values():
-        PipelineConfig.for_sensor(s, u, **options)  # ConfigError now, not after the replay started
+        cfg = PipelineConfig.for_sensor(s, u, **options)  # ConfigError now, not after the replay started
+        if position and s == "mag":
+            print(f"{s}: {field_line(cfg, norm_given='reference_norm' in options)}")
     return options
 
 
@@ -227,7 +239,7 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(msg)
     sets = parse_sets(args.set)
     sensor, unit, plan = _checked_plan(path, args.sensor, args.unit, args.topic)
-    options = _options(sets, plan, args.full_only)
+    options = _options(sets, plan, args.full_only, position_options(args))
     validator = load_validator(args.validator) if args.validator is not None else None
     print(f"replaying {path}" + (f" with the validator {args.validator}" if validator is not None else ""))
     printer = None if args.quiet else print
@@ -246,6 +258,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"  {s}{on}: {st.state.value} [{st.level.name}] {st.message}")
         if topics.get(s):
             entry["topic"] = topics[s]
+        if c.config.sensor == "mag" and c.config.field_model() is not None:
+            entry["field_model"] = field_line(c.config, norm_given="reference_norm" in options)
+            print(f"    {entry['field_model']}")
         if c.calibration is not None:
             print(_format_cal(c.calibration))
             for line in _heading_lines(st):

@@ -6,8 +6,9 @@ The value ``Calibration`` (h = W (v - b), Camps et al. 2009 Eq. 2, norm |h|) and
 Eqs. 6-12), with ``fitting_core`` holding the shared Gauss-Newton pieces; the MAP fit with a prior
 that updates only what the data determine (``fitting_prior``, its geometric residual in
 ``fitting_geometric``, the coloured-noise model of its time series in ``fitting_noise``) and the heading
-error predicted from a calibration's covariance (``heading``). Everything else builds on this package;
-it imports nothing of the rest.
+error predicted from a calibration's covariance (``heading``), and the Earth's field at a position from
+the World Magnetic Model (``geomag``: the reference norm and the heading figures' inclination). Everything
+else builds on this package; it imports nothing of the rest.
 """
 
 from __future__ import annotations
@@ -27,17 +28,19 @@ from .fitting_linear import algebraic, lin_auto, lin_auto_fit, mvee, sphere, sqr
 from .fitting_prior import (
     BROAD_MATRIX_STD, BROAD_OFFSET_STD, UPDATED_VARIANCE_RATIO, PriorFit, broad_prior, fit_with_prior, posterior_at
 )
+from .geomag import FIELD_MODEL, GeomagField, decimal_year, distance_km, field_at, format_position
 from .heading import (
     attitudes, format_bound, heading_gradient, heading_p95, heading_p95_quantile, heading_p95_typical, heading_std_deg,
     inclination_deg, inflated, with_offset_noise
 )
 
 __all__ = [
-    "BROAD_MATRIX_STD", "BROAD_OFFSET_STD", "LOSSES", "METHODS", "MODELS", "N_PARAMS", "OFF",
+    "BROAD_MATRIX_STD", "BROAD_OFFSET_STD", "FIELD_MODEL", "LOSSES", "METHODS", "MODELS", "N_PARAMS", "OFF",
     "UPDATED_VARIANCE_RATIO", "Calibration", "CalibrationFileError", "ConfigError", "ConvergenceError",
-    "DegenerateDataError", "FitStats", "InputError", "MargCalError", "Prepared", "PriorFit", "RecordingError",
+    "DegenerateDataError", "FitStats", "GeomagField", "InputError", "MargCalError", "Prepared", "PriorFit", "RecordingError",
     "abs_model", "algebraic", "as_points", "as_vector3", "attitudes", "broad_prior", "calibration_from_yaml",
-    "calibration_to_yaml", "check_geometry", "check_singular", "finish", "fit", "fit_with_prior", "format_bound",
+    "calibration_to_yaml", "check_geometry", "check_singular", "decimal_year", "distance_km", "field_at", "finish", "fit",
+    "fit_with_prior", "format_bound", "format_position",
     "gn_covariance", "gram", "heading_gradient", "heading_p95", "heading_p95_quantile", "heading_p95_typical",
     "heading_std_deg", "inclination_deg", "inflated", "lin_auto", "lin_auto_fit", "load_calibrations", "mad_sigma",
     "mvee", "one_line", "pack", "parameter_names", "posterior_at", "prepare", "raw_scale", "residuals", "resjac",

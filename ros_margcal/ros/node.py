@@ -15,6 +15,13 @@ Topics (defaults, all remappable; REP-145 names, REP-103 units):
   view on ``/calib/markers`` (visualization_msgs/MarkerArray, every status period while someone subscribes:
   buffered samples, covered bins, the fitted ellipsoid, coloured by state; ``markers.py``) for RViz.
 
+The field from a geomagnetic model (issue 28): a position, from the parameters ``latitude``/``longitude``/
+``altitude`` (NaN: unset) or from ``gps/fix`` (sensor_msgs/NavSatFix, sensor-data QoS, when ``gps_fix``: the
+first fix with a status of at least STATUS_FIX, and a later one more than ``FIX_MOVE_KM`` away), makes the
+magnetometer's ``reference_norm`` the World Magnetic Model's intensity there and its inclination that of the heading
+figures (``PipelineConfig.at_position``); the worker gets the new options (``configure``), and the status's
+``field_model`` says which field: 'field from WMM2025 at 48.1°N 11.6°E: 48.8 µT, inclination 64.4° (2026.90)'.
+
 Services (std_srvs/Trigger): ``~/reset`` (forget samples and calibrations), ``~/save`` (write the
 calibration file now), ``~/refit`` (validate and fit now; the validator and guard rails still decide).
 
@@ -61,9 +68,9 @@ from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from rclpy.task import Future
-from sensor_msgs.msg import Imu, MagneticField
+from sensor_msgs.msg import Imu, MagneticField, NavSatFix, NavSatStatus
 from std_msgs.msg import Header, String
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
@@ -71,6 +78,7 @@ from visualization_msgs.msg import MarkerArray
 from ..model.calibration import FORCED, Calibration
 from ..model.calibration_file import load_calibrations, save_calibrations
 from ..model.errors import CalibrationFileError, ConfigError
+from ..model.geomag import distance_km, field_at
 from ..stream.config import PipelineConfig, plausibility
 from ..stream.status import EventKind, Level, State, Status
 from ..stream.units import unit_scale
@@ -155,6 +163,8 @@ DROP_WINDOW_S = 2.0
 DROP_WARN = 0.5
 """... (of at least ``DROP_MIN_SAMPLES`` samples; field disturbances, the ``outlier`` drops, not counted)."""
 DROP_MIN_SAMPLES = 10
+FIX_MOVE_KM = 50.0
+"""A GPS fix this far from the position in use moves the field model there (the field changes ~0.1 % per 50 km)."""
 OTHER_FRAME_S = 10.0
 """The status flags messages of another frame_id on a sensor's topic for this long after the last one, s."""
 
@@ -275,6 +285,7 @@ class MargCalNode(Node):
             additional_constraints="one of: " + ", ".join(STAMP_SOURCES)))
         self.declare_parameter("queue_depth", 1000, _idesc(
             10, 100000, "depth of the best-effort input queues, messages (1 s at 1 kHz by default)", read_only=True))
+        self._position = self._declare_position()
 
         self._publish_raw = bool(self.get_parameter("publish_uncalibrated").value)  # read per message: cached
         mode = str(self.get_parameter("stamp_source").value)
@@ -320,6 +331,8 @@ class MargCalNode(Node):
         if self._configs:  # the Imu topic also brings the magnetometer's rates
             self._pub_imu = self.create_publisher(Imu, "imu_calibrated/data_raw", OUTPUT_DEPTH)
             self.create_subscription(Imu, "imu/data_raw", self._on_imu, sensor_qos)
+        if "mag" in self._configs and self.get_parameter("gps_fix").value:
+            self.create_subscription(NavSatFix, "gps/fix", self._on_fix, qos_profile_sensor_data)
         self._pub_status = self.create_publisher(DiagnosticArray, "/calib/status", 10)
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         # a group of their own: a service awaiting the worker keeps its group busy, never the samples' default group
@@ -367,6 +380,48 @@ class MargCalNode(Node):
 
     # -- parameters -------------------------------------------------------------------------------
 
+    def _declare_position(self) -> tuple[float, float, float] | None:
+        """The field model's position from the parameters (None: unset or refused, with an error log line)."""
+        for name, text in (("latitude", "geodetic latitude, deg, for the field model (WMM2025); NaN = unset"),
+                           ("longitude", "longitude, deg east, for the field model; NaN = unset"),
+                           ("altitude", "altitude above the WGS 84 ellipsoid, m, for the field model; NaN = 0")):
+            self.declare_parameter(name, math.nan, ParameterDescriptor(description=text, read_only=True))
+        self.declare_parameter("gps_fix", True, ParameterDescriptor(
+            description="take the field model's position from gps/fix (sensor_msgs/NavSatFix)", read_only=True))
+        lat, lon, alt = (float(self.get_parameter(n).value) for n in ("latitude", "longitude", "altitude"))
+        if math.isnan(lat) and math.isnan(lon):
+            return None
+        return self._usable(lat, lon, 0.0 if math.isnan(alt) else alt, "the parameters latitude/longitude")
+
+    def _usable(self, lat: float, lon: float, alt: float, source: str) -> tuple[float, float, float] | None:
+        """``(lat, lon, alt)`` if the field model takes it; else None and an error log line saying why."""
+        try:
+            field = field_at(lat, lon, alt)
+        except ConfigError as exc:
+            self.get_logger().error(f"position from {source} refused: {exc}; the field model is not used",
+                                    throttle_duration_sec=60.0)  # a bad fix repeats at the receiver's rate
+            return None
+        self.get_logger().info(f"{field.describe()} (from {source}): the magnetometer's reference norm and inclination")
+        return lat, lon, alt
+
+    def _on_fix(self, msg: NavSatFix) -> None:
+        """A GPS fix: the field model's position when there is none yet or this one is ``FIX_MOVE_KM`` away."""
+        if msg.status.status < NavSatStatus.STATUS_FIX:
+            return
+        lat, lon, alt = float(msg.latitude), float(msg.longitude), float(msg.altitude)
+        if not (math.isfinite(lat) and math.isfinite(lon)):
+            return
+        now = self._position
+        if now is not None and distance_km(now[0], now[1], lat, lon) <= FIX_MOVE_KM:
+            return
+        alt = alt if math.isfinite(alt) else 0.0
+        position = self._usable(lat, lon, alt, "gps/fix")
+        if position is None or "mag" not in self._configs:
+            return
+        self._position = position
+        self._configs["mag"] = self._config_from("mag", {})
+        self._worker.request("configure", "mag", self._configs["mag"])
+
     def _declare_sensor(self, s: str) -> PipelineConfig:
         si = "T" if s == "mag" else "m/s^2"
         unit = str(self.declare_parameter(f"{s}.unit", si, ParameterDescriptor(
@@ -410,7 +465,10 @@ class MargCalNode(Node):
                 values[name] = None  # 0.0 = off / the validator's own threshold
         if not values["norm_max"]:
             values["norm_max"] = math.inf  # 0.0 = none (a unit without a scale: counts)
-        return replace(base, **values).checked()
+        cfg = replace(base, **values).checked()
+        if s == "mag" and self._position is not None:
+            cfg = cfg.at_position(*self._position)
+        return cfg
 
     def _validate_parameters(self, params: list[Parameter]) -> SetParametersResult:
         changed = {p.name: p.value for p in params}
@@ -672,7 +730,7 @@ class MargCalNode(Node):
             msg = status_to_diagnostic(st, DiagnosticStatus, KeyValue, level_encoder=_level_bytes,
                                        hardware_id=traffic.frame or "")
             ignored = sum(traffic.other_frames.values())
-            extra = [*traffic.values(traffic.tick(now)), ("ignored_other_frames", str(ignored)),
+            extra = [*traffic.values(traffic.tick(now)), *self._field_values(s), ("ignored_other_frames", str(ignored)),
                      ("worker_backlog", str(max(traffic.received - ignored - st.samples_seen, 0))),
                      ("worker_restarts", str(self._worker.restarts))]
             msg.values.extend(KeyValue(key=k, value=v) for k, v in extra)
@@ -680,6 +738,14 @@ class MargCalNode(Node):
         self._pub_status.publish(arr)
         if self.get_parameter("publish_diagnostics").value:
             self._pub_diag.publish(arr)
+
+    def _field_values(self, s: str) -> list[tuple[str, str]]:
+        """The magnetometer's ``field_model`` status value: which model field it is scaled to, or that none is."""
+        if s != "mag":
+            return []
+        field = self._configs[s].field_model() if s in self._configs else None
+        return [("field_model", field.describe() if field is not None else
+                 "none: no position (parameters latitude/longitude or gps/fix); norm from the data")]
 
 
 def main(args: list[str] | None = None) -> None:

@@ -26,6 +26,10 @@ offset limit, diagonal/off-diagonal limits, field strength check), restated for 
   refused here;
 - not worse: on the most recent samples, the RMS relative norm error of the new fit is at most
   ``(1 + not_worse_tolerance)`` times that of the current calibration.
+
+A position (``latitude_deg``, ``longitude_deg``, ``altitude_m``; ``at_position``) takes the magnetometer's
+``reference_norm`` and the heading figures' ``heading_inclination_deg`` from the World Magnetic Model
+(``model/geomag.py``), as ArduPilot and PX4 scale their fits to it; ``field_model`` says which field that is.
 """
 
 from __future__ import annotations
@@ -41,6 +45,7 @@ from numpy.typing import NDArray
 from ..model.calibration import MODELS, Calibration
 from ..model.errors import ConfigError
 from ..model.fitting import LOSSES, METHODS, SUPPORTED
+from ..model.geomag import GeomagField, field_at
 from .units import ACCEL_UNITS, GRAVITY, LEARN_SAMPLES, MAG_UNITS, unit_scale
 
 __all__ = ["ACCEL_UNITS", "FIELD_SPECS", "GRAVITY", "GYRO_PAIR_S", "MAG_UNITS", "STATIC_SPREAD", "FieldSpec",
@@ -143,6 +148,11 @@ class PipelineConfig:
     early_interval_s: float = 0.5  # evaluation cadence while an early fit is close to passing
     prior_inflate: float = 4.0  # covariance factor on a previous calibration used as the prior
     heading_inclination_deg: float | None = None  # field inclination for the heading figures (None: from the data)
+    # the field from a geomagnetic model (``at_position``): sets reference_norm and heading_inclination_deg
+    latitude_deg: float | None = None  # geodetic, deg; None: no position
+    longitude_deg: float | None = None  # deg east (-180..360)
+    altitude_m: float = 0.0  # above the WGS 84 ellipsoid, m
+    field_year: float | None = None  # decimal year the model was evaluated at (None: today)
 
     @property
     def min_period_s(self) -> float:
@@ -191,7 +201,32 @@ class PipelineConfig:
         bad = sorted(set(overrides) - {f.name for f in fields(cls)})
         if bad:
             raise ConfigError(f"unknown options {bad}")
-        return replace(base, **overrides).checked() if overrides else base.checked()
+        cfg = replace(base, **overrides).checked() if overrides else base.checked()
+        if cfg.latitude_deg is not None and cfg.longitude_deg is not None:  # a norm given too wins over the model's
+            cfg = cfg.at_position(cfg.latitude_deg, cfg.longitude_deg, cfg.altitude_m, cfg.field_year,
+                                  norm="reference_norm" not in overrides)
+        return cfg
+
+    def at_position(self, lat_deg: float, lon_deg: float, alt_m: float = 0.0, when: Any = None, *,
+                    norm: bool = True) -> PipelineConfig:
+        """A copy for the World Magnetic Model's field at this position on ``when`` (None: today; ``geomag.field_at``):
+        a magnetometer's ``reference_norm`` in its unit (unless ``norm`` is False or the unit has no known scale:
+        counts) and ``heading_inclination_deg``. ConfigError for a bad position or a date outside the model."""
+        f = field_at(lat_deg, lon_deg, alt_m, when)
+        changes: dict[str, Any] = {"latitude_deg": f.lat_deg, "longitude_deg": f.lon_deg, "altitude_m": f.alt_m,
+                                   "field_year": f.year}
+        if self.sensor == "mag":
+            scale = unit_scale("mag", self.unit)
+            if norm and scale is not None:
+                changes["reference_norm"] = f.intensity_t / scale
+            changes["heading_inclination_deg"] = f.inclination_deg
+        return replace(self, **changes).checked()
+
+    def field_model(self) -> GeomagField | None:
+        """The model field at this position and date (``at_position``), or None without a position."""
+        if self.latitude_deg is None or self.longitude_deg is None:
+            return None
+        return field_at(self.latitude_deg, self.longitude_deg, self.altitude_m, self.field_year)
 
     def checked(self) -> PipelineConfig:
         """Return self after checking every option against ``FIELD_SPECS``; ConfigError names the bad one.
@@ -211,6 +246,9 @@ class PipelineConfig:
             raise ConfigError(f"need 0 <= norm_min < norm_max, got {self.norm_min}, {self.norm_max}")
         if not self.min_magnitude < self.max_magnitude:
             raise ConfigError(f"need 0 <= min_magnitude < max_magnitude, got {self.min_magnitude}, {self.max_magnitude}")
+        if (self.latitude_deg is None) != (self.longitude_deg is None):
+            raise ConfigError(f"a position needs latitude_deg and longitude_deg, got {self.latitude_deg!r} and "
+                              f"{self.longitude_deg!r}")
         if self.change_window > self.recent_samples:
             raise ConfigError(f"change_window ({self.change_window}) must not exceed recent_samples ({self.recent_samples})")
         capacity = self.n_bins * self.per_bin
@@ -346,6 +384,10 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "early_heading_p95_deg": _real(0.0, 180.0, open_lo=True),
     "early_interval_s": _real(0.0, 3600.0),
     "heading_inclination_deg": _real(-90.0, 90.0, none_ok=True),
+    "latitude_deg": _real(-90.0, 90.0, none_ok=True),
+    "longitude_deg": _real(-180.0, 360.0, none_ok=True),
+    "altitude_m": _real(-1000.0, 850e3),
+    "field_year": _real(1900.0, 2100.0, none_ok=True),
     "max_stamp_gap_s": _real(1e-3, _DAY_S),
     "new_time_base_after": FieldSpec(int, 2, 1_000),
 }
