@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 from study_ground_robot import independent_generator  # scripts/ is on the path when a script in it runs
-from study_real_recordings import DATA, UNITS, batch, heading_p95_against
+from study_real_recordings import DATA, UNITS, batch_stretches, heading_p95_against
 
 from ros_margcal.model.calibration import Calibration
 from ros_margcal.model.fitting_prior import NAMES as SYM_NAMES
@@ -192,12 +192,15 @@ def real(data: Path) -> None:
     every: list[dict[str, float]] = []
     for name in names:
         path, unit = data / name, UNITS[name]
-        ref, note = batch(path, "mag", unit)
+        stretches, note = batch_stretches(path, "mag", unit)
         rows: list[dict[str, float]] = []
-        if ref is not None:
+        if stretches:
             rec = read_recording(path, sensor="mag", order="file")
+            note += ", each against its stretch's" if len(stretches) > 1 else ""
 
-            def measure(c: Calibration, ref: Calibration = ref) -> tuple[float, float]:
+            def measure(c: Calibration, parts: list[Calibration] = stretches) -> tuple[float, float]:
+                # the batch fit of the stretch it was fitted in: the first whose end (its stamp) is not before it
+                ref = next((cal for cal in parts if cal.stamp >= c.stamp), parts[-1])
                 return heading_p95_against(c, ref, 0.0), heading_p95_against(c, ref, 30.0)
 
             rows = published(np.asarray(rec.t), np.asarray(rec.raw), PipelineConfig.for_sensor("mag", unit), measure)

@@ -76,12 +76,21 @@ def heading_p95_against(cal: Calibration, ref: Calibration, tilt_deg: float, inc
 
 
 def batch(path: Path, sensor: str, unit: str) -> tuple[Calibration | None, str]:
-    """The batch fit as ``margcal calibrate`` makes it, and a note (the diagnosis when it needed one)."""
+    """The batch fit as ``margcal calibrate`` makes it (the last stretch's, when the sensor changed), and a note
+    (the diagnosis when it needed one)."""
+    parts, note = batch_stretches(path, sensor, unit)
+    return (parts[-1] if parts else None), (note.replace(" calibrations", " calibrations, last used", 1)
+                                                if len(parts) > 1 else note)
+
+
+def batch_stretches(path: Path, sensor: str, unit: str) -> tuple[list[Calibration], str]:
+    """The batch fits as ``margcal calibrate`` makes them, in time order (one unless the offset changed in the
+    recording; each stamped with the end of its stretch), and a note (the diagnosis when it needed one)."""
     rec = read_recording(path, sensor=sensor)
     try:
         pts = still_samples(rec) if sensor == "accel" else np.asarray(rec.raw, dtype=np.float64)
     except RecordingError as exc:
-        return None, f"none: {exc}"
+        return [], f"none: {exc}"
     cfg = config_for(sensor, unit)
     try:
         cal = fit(pts, model="sym", method="lm", sensor=sensor, unit=unit)
@@ -89,19 +98,19 @@ def batch(path: Path, sensor: str, unit: str) -> tuple[Calibration | None, str]:
     except (ConvergenceError, DegenerateDataError) as exc:
         cal, why, high = None, str(exc), ""
     if not why and not high:
-        return cal, "lm"
+        return [cal], "lm"
     res = rescue(None if sensor == "accel" else np.asarray(rec.t, dtype=np.float64), pts, failure=why or high,
                  model="sym", norm=None, loss="linear", sensor=sensor, unit=unit, cfg=cfg, change_only=not why)
     if res is None:
-        return cal, f"lm, warning: {high.split(':')[0]}"
+        return ([cal] if cal is not None else []), f"lm, warning: {high.split(':')[0]}"
     fitted = [p for p in res.parts if p.calibration is not None]
     if not fitted:
-        return None, f"{res.kind}: refused"
+        return [], f"{res.kind}: refused"
     last = fitted[-1]
-    note = f"{res.kind}: {len(fitted)} calibrations, last used" if res.kind == "change" else res.kind
+    note = f"{res.kind}: {len(fitted)} calibrations" if res.kind == "change" else res.kind
     if last.prior_fit is not None and last.prior_fit.from_prior:
         note += f" (from prior: {', '.join(last.prior_fit.from_prior)})"
-    return last.calibration, note
+    return [p.calibration for p in fitted if p.calibration is not None], note
 
 
 def study(path: Path) -> dict[str, object]:
