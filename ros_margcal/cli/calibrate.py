@@ -54,7 +54,16 @@ from ..recordings.recording import Recording, continue_clock
 from ..stream.config import PipelineConfig
 from .calibrate_guard import EXIT_REFUSED, forced, norm_source, refusal
 from .fit_rescue import (
-    MIN_SCALE, Rescue, check, config_for, heading_text, inclination_of, reading_scale, rescue, residual_note, screen
+    MIN_SCALE,
+    Rescue,
+    check,
+    config_for,
+    heading_text,
+    inclination_of,
+    reading_scale,
+    rescue,
+    residual_note,
+    screen,
 )
 from .position import add_position_args, field_line, position_options, radius_note
 from .raw_units import prepare

@@ -1,12 +1,12 @@
 """The stream's guard rails for ``margcal calibrate``: what the online calibrator would not publish is not written.
 
-A batch fit (plain, per side of an offset change, or with the prior) is refused when
-``stream.config.plausibility`` refuses it (field norm implausible in a known unit, parameter uncertainty,
-offset beyond the limit, axis gains), and a magnetometer's also when its predicted heading error p95,
-level (``model.heading``, at the configured inclination: a position's model field, else 60°), exceeds ``max_heading_p95_deg`` or cannot be determined; a magnetometer's
-prior fit (partial by design) is judged by that figure instead of the uncertainty of its prior terms. The command then
-exits ``EXIT_REFUSED`` without writing; ``--force`` writes it, with ``forced`` and the reason in the
-calibration's ``method`` (the file's free-form field; the node shows it) and in the JSON.
+A batch fit (plain, per side of an offset change, or with the prior) is refused when ``stream.config.plausibility``
+refuses it (field norm implausible in a known unit, parameter uncertainty, offset beyond the limit, axis gains), and
+a magnetometer's also when its predicted heading error p95, level (``model.heading``, at the configured inclination:
+a position's model field, else 60°), exceeds ``max_heading_p95_deg`` or cannot be determined; a magnetometer's prior
+fit (partial by design) is judged by that figure instead of the uncertainty of its prior terms. The command then
+exits ``EXIT_REFUSED`` without writing; ``--force`` writes it, with ``forced`` and the reason in the calibration's
+``method`` (the file's free-form field; the node shows it) and in the JSON.
 """
 
 from __future__ import annotations

@@ -33,16 +33,18 @@ from .heading import (
     attitudes, format_bound, heading_gradient, heading_p95, heading_p95_quantile, heading_p95_typical, heading_std_deg,
     inclination_deg, inflated, with_offset_noise
 )
+from .mounting import ROTATIONS, Mounting, find_mounting, into_imu_frame, rotation_name
 
 __all__ = [
     "BROAD_MATRIX_STD", "BROAD_OFFSET_STD", "FIELD_MODEL", "LOSSES", "METHODS", "MODELS", "N_PARAMS", "OFF",
-    "UPDATED_VARIANCE_RATIO", "Calibration", "CalibrationFileError", "ConfigError", "ConvergenceError",
-    "DegenerateDataError", "FitStats", "GeomagField", "InputError", "MargCalError", "Prepared", "PriorFit", "RecordingError",
-    "abs_model", "algebraic", "as_points", "as_vector3", "attitudes", "broad_prior", "calibration_from_yaml",
-    "calibration_to_yaml", "check_geometry", "check_singular", "decimal_year", "distance_km", "field_at", "finish", "fit",
-    "fit_with_prior", "format_bound", "format_position",
-    "gn_covariance", "gram", "heading_gradient", "heading_p95", "heading_p95_quantile", "heading_p95_typical",
-    "heading_std_deg", "inclination_deg", "inflated", "lin_auto", "lin_auto_fit", "load_calibrations", "mad_sigma",
-    "mvee", "one_line", "pack", "parameter_names", "posterior_at", "prepare", "raw_scale", "residuals", "resjac",
-    "save_calibrations", "solve_spd3", "sphere", "sqrt_pd", "unpack", "with_offset_noise"
+    "ROTATIONS", "UPDATED_VARIANCE_RATIO", "Calibration", "CalibrationFileError", "ConfigError", "ConvergenceError",
+    "DegenerateDataError", "FitStats", "GeomagField", "InputError", "MargCalError", "Mounting", "Prepared",
+    "PriorFit", "RecordingError", "abs_model", "algebraic", "as_points", "as_vector3", "attitudes", "broad_prior",
+    "calibration_from_yaml", "calibration_to_yaml", "check_geometry", "check_singular", "decimal_year",
+    "distance_km", "field_at", "find_mounting", "finish", "fit", "fit_with_prior", "format_bound",
+    "format_position", "gn_covariance", "gram", "heading_gradient", "heading_p95", "heading_p95_quantile",
+    "heading_p95_typical", "heading_std_deg", "inclination_deg", "inflated", "into_imu_frame", "lin_auto",
+    "lin_auto_fit", "load_calibrations", "mad_sigma", "mvee", "one_line", "pack", "parameter_names", "posterior_at",
+    "prepare", "raw_scale", "residuals", "resjac", "rotation_name", "save_calibrations", "solve_spd3", "sphere",
+    "sqrt_pd", "unpack", "with_offset_noise"
 ]

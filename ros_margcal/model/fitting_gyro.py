@@ -27,9 +27,11 @@ little (``MIN_EXPLAINED``: swapped axes, a rate in deg/s) is not trusted. A magn
 or two against the IMU passes that check; the fit then pulls the calibration toward the IMU's frame as far
 as a symmetric matrix can, which is the frame tilt compensation uses (the IMU's attitude): on the
 independent generator with 1-3 deg of such misalignment (5 deg ring, seeds 11 and 13, a throwaway run)
-the level heading p95 was 1.10 / 0.81, 2.10 / 1.66, 3.10 / 2.53 deg with the gyro against 1.65 / 1.72,
-2.66 / 3.34, 3.67 / 5.09 deg without, at or below the best a symmetric calibration can reach. (Estimating
-the rotation between the two frames instead would keep the calibration in the magnetometer's frame.)
+the level heading p95 was 1.10 / 0.81, 2.10 / 1.66, 3.10 / 2.53 deg with the gyro against 1.65 / 1.72, 2.66 /
+3.34, 3.67 / 5.09 deg without, at or below the best a symmetric calibration can reach. ``model.mounting``
+estimates the rotation between the two frames from these blocks instead (which of the 24 axis-aligned rotations,
+then the misalignment left, with ``frame_shares`` and ``rotated_blocks``), so that a magnetometer turned by 90 or
+180 deg is named and can be calibrated into the IMU's frame.
 
 On a robot turning in yaw with 5 deg of roll and pitch (the
 independent generator of ``tests/independent``, 300 s, two tuning seeds, batch MAP fits, a throwaway
@@ -48,8 +50,9 @@ from numpy.typing import ArrayLike, NDArray
 from .errors import InputError
 from .fitting_core import mad_sigma, unpack
 
-__all__ = ["FRAME_BETTER", "GYRO_BIAS_STD", "GYRO_SCALE_STD", "MIN_EXPLAINED", "GyroBlocks", "GyroTerm", "explained",
-           "frame_check", "gyro_blocks", "gyro_residuals"]
+__all__ = ["FRAME_BETTER", "GYRO_BIAS_STD", "GYRO_SCALE_STD", "MIN_EXPLAINED", "SIGNED_PERMUTATIONS", "GyroBlocks",
+           "GyroTerm", "axial", "explained", "frame_check", "frame_name", "frame_shares", "gyro_blocks", "gyro_residuals",
+           "rotated_blocks", "skew"]
 
 Array = NDArray[np.float64]
 
@@ -73,6 +76,7 @@ _GAP = 3.0  # a step longer than this many median steps ends a block: the sample
 _E = [np.array(m, dtype=np.float64) for m in (  # d W / d (w_xx, w_yy, w_zz, w_xy, w_xz, w_yz)
     [[1, 0, 0], [0, 0, 0], [0, 0, 0]], [[0, 0, 0], [0, 1, 0], [0, 0, 0]], [[0, 0, 0], [0, 0, 0], [0, 0, 1]],
     [[0, 1, 0], [1, 0, 0], [0, 0, 0]], [[0, 0, 1], [0, 0, 0], [1, 0, 0]], [[0, 0, 0], [0, 0, 1], [0, 1, 0]])]
+_E_STACK = np.stack(_E)
 
 
 @dataclass(frozen=True)
@@ -80,7 +84,9 @@ class GyroBlocks:
     """Per block of consecutive samples: ``d`` = v_m - v_0 (N, 3), ``theta`` = sum theta (N, 3), ``p`` = sum
     dt vbar (N, 3), ``t`` = sum dt (N,) (module docstring) and, in place of ``S = sum theta vbar^T``,
     ``ax[m, k]`` = axial(E_m S^T E_kk) for W's six basis matrices and the three gyro axes (6, 3, N, 3),
-    computed once (``_axial_basis``); ``s`` = S itself (N, 3, 3) for ``frame_check``."""
+    computed once (``_axial_basis``); ``s`` = S itself (N, 3, 3) for ``frame_check``; ``s_dot`` = sum (omega_j+1 -
+    omega_j) vbar_j^T (N, 3, 3) and ``theta_dot`` = omega_m - omega_0 (N, 3), what S and Theta gain per second of a
+    time offset of the rates (``model.mounting``: the rate at ``t + tau``, first order in ``tau``)."""
 
     d: Array
     theta: Array
@@ -88,6 +94,8 @@ class GyroBlocks:
     t: Array
     ax: Array
     s: Array
+    s_dot: Array
+    theta_dot: Array
 
     def __len__(self) -> int:
         return len(self.t)
@@ -109,7 +117,7 @@ def gyro_blocks(t: ArrayLike, xyz: ArrayLike, gyro: ArrayLike, k: int) -> GyroBl
         raise InputError(msg)
     nb = len(tt) // k
     empty = GyroBlocks(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros((6, 3, 0, 3)),
-                       np.zeros((0, 3, 3)))
+                       np.zeros((0, 3, 3)), np.zeros((0, 3, 3)), np.zeros((0, 3)))
     if nb == 0:
         return empty
     n = nb * k
@@ -124,30 +132,34 @@ def gyro_blocks(t: ArrayLike, xyz: ArrayLike, gyro: ArrayLike, k: int) -> GyroBl
     vbar = 0.5 * (vb[:, 1:] + vb[:, :-1])
     th = 0.5 * (wb[:, 1:] + wb[:, :-1]) * dt[..., None]
     s = np.einsum("nji,njk->nik", th, vbar)
+    dw = np.diff(wb, axis=1)
     return GyroBlocks(d=vb[:, -1] - vb[:, 0], theta=th.sum(axis=1), p=np.einsum("nj,nji->ni", dt, vbar),
-                      t=dt.sum(axis=1), ax=_axial_basis(s), s=s)
+                      t=dt.sum(axis=1), ax=_axial_basis(s), s=s, s_dot=np.einsum("nji,njk->nik", dw, vbar),
+                      theta_dot=wb[:, -1] - wb[:, 0])
 
 
-def _axial(m: Array) -> Array:
+def axial(m: Array) -> Array:
     """``axial(N)`` of each (3, 3) ``N`` of ``m`` (..., 3, 3): ``(N_zy - N_yz, N_xz - N_zx, N_yx - N_xy)``, so that
     ``sum_j theta_j x (W vbar_j) = axial(W S^T)``."""
     return np.stack([m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]], axis=-1)
 
 
-def _skew(c: Array) -> Array:
+def skew(c: Array) -> Array:
     """``K`` with ``a @ K = a x c`` for rows ``a`` (N, 3)."""
     return np.array([[0.0, c[2], -c[1]], [-c[2], 0.0, c[0]], [c[1], -c[0], 0.0]]).T
 
 
 def _axial_basis(s: Array) -> Array:
     """``axial(E_m S^T E_kk)`` of each block (6, 3, N, 3): ``axial(W S^T diag(1 + kappa))`` is linear in W's
-    entries and in the gyro scale errors, so a residual evaluation needs contractions, no (N, 3, 3) product."""
+    entries and in the gyro scale errors, so a residual evaluation needs contractions, no (N, 3, 3) product.
+    ``S^T E_kk`` keeps only column k, row k of S (the gyro's axis k): ``axial(c e_k^T) = e_k x c`` with ``c = E_m s_k``."""
     out = np.empty((6, 3, len(s), 3))
+    es = np.einsum("mij,nkj->mkni", _E_STACK, s)  # E_m s_k for every m, k: (6, 3, N, 3)
     for k in range(3):
-        sk = np.zeros_like(s)
-        sk[:, k, :] = s[:, k, :]  # S^T E_kk keeps column k of S^T: row k of S (the gyro's axis k)
-        for m, e in enumerate(_E):
-            out[m, k] = _axial(np.einsum("cd,nbd->ncb", e, sk))
+        i, j = (k + 1) % 3, (k + 2) % 3  # e_k x c = (.., c_j at i with +, c_i at j with -) cyclically
+        out[:, k, :, k] = 0.0
+        out[:, k, :, i] = -es[:, k, :, j]
+        out[:, k, :, j] = es[:, k, :, i]
     return out
 
 
@@ -161,22 +173,22 @@ def gyro_residuals(blocks: GyroBlocks, b: Array, mat: Array, beta: Array, kappa:
     a = blocks.theta * sc - blocks.t[:, None] * beta  # Theta' - T beta
     w6 = np.array([mat[0, 0], mat[1, 1], mat[2, 2], mat[0, 1], mat[0, 2], mat[1, 2]])
     ax_w = np.tensordot(sc, blocks.ax, axes=([0], [1]))  # (6, N, 3): axial(E_m S'^T)
-    beta_k = _skew(beta)
+    beta_k = skew(beta)
     wb = mat @ b
-    u = np.tensordot(w6, ax_w, 1) - a @ _skew(wb) + blocks.p @ (mat.T @ beta_k)  # beta x y = -y @ skew(beta)
+    u = np.tensordot(w6, ax_w, 1) - a @ skew(wb) + blocks.p @ (mat.T @ beta_k)  # beta x y = -y @ skew(beta)
     g = u @ winv_t  # W^-1 u
     r = blocks.d + g
     nb = len(blocks)
     jt = np.empty((15, nb, 3))
     for i in range(3):  # d u / d b_i = -(Theta' - T beta) x W e_i
-        jt[i] = a @ (-_skew(mat[:, i]) @ winv_t)
+        jt[i] = a @ (-skew(mat[:, i]) @ winv_t)
     for m, e in enumerate(_E):  # d u / d W[e] = axial(e S'^T) - a x e b - beta x e P; dr = W^-1 (du - e g)
-        du = ax_w[m] - a @ _skew(e @ b) + blocks.p @ (e.T @ beta_k) - g @ e.T
+        du = ax_w[m] - a @ skew(e @ b) + blocks.p @ (e.T @ beta_k) - g @ e.T
         jt[3 + m] = du @ winv_t
     q = (blocks.p - blocks.t[:, None] * b) @ mat.T  # d u / d beta_i = [W (P - T b)] x e_i
     eye = np.eye(3)
     for i in range(3):
-        jt[9 + i] = q @ (_skew(eye[i]) @ winv_t)
+        jt[9 + i] = q @ (skew(eye[i]) @ winv_t)
     for k in range(3):  # d u / d kappa_k = axial(W S^T E_kk) - Theta_k e_k x W b
         du = np.tensordot(w6, blocks.ax[:, k], 1) - blocks.theta[:, k:k + 1] * np.cross(eye[k], wb)
         jt[12 + k] = du @ winv_t
@@ -223,6 +235,8 @@ def _signed_permutations() -> list[Array]:
 
 
 _FRAMES = _signed_permutations()
+SIGNED_PERMUTATIONS = tuple(_FRAMES)
+"""The 48 signed permutation matrices, the identity first (``_signed_permutations``)."""
 
 
 def frame_name(m: Array) -> str:
@@ -231,21 +245,34 @@ def frame_name(m: Array) -> str:
                            for row in m) + ")"
 
 
+def frame_shares(blocks: GyroBlocks, offset: ArrayLike, matrix: ArrayLike, frames: list[Array]) -> list[float]:
+    """``explained`` under the calibration ``(offset, matrix)`` of the rates taken as ``m omega`` for each ``m`` of
+    ``frames`` (no bias or scale error): ``S' = m S``, ``Theta' = Theta m^T``, vectorised over blocks."""
+    b = np.asarray(offset, dtype=np.float64)
+    w = np.asarray(matrix, dtype=np.float64)
+    winv_t, k_wb = np.linalg.inv(w).T, skew(w @ b)
+    st = w @ blocks.s.transpose(0, 2, 1)
+    return [explained(blocks, blocks.d + (axial(st @ m.T) - blocks.theta @ (m.T @ k_wb)) @ winv_t) for m in frames]
+
+
+def rotated_blocks(blocks: GyroBlocks, m: ArrayLike) -> GyroBlocks:
+    """The blocks with the rates taken as ``m omega`` (a gyro whose frame is rotated against the magnetometer's:
+    ``m`` maps the gyro's axes to the magnetometer's); the readings' sums are unchanged."""
+    mm = np.asarray(m, dtype=np.float64)
+    s = np.einsum("ij,njk->nik", mm, blocks.s)
+    return GyroBlocks(d=blocks.d, theta=blocks.theta @ mm.T, p=blocks.p, t=blocks.t, ax=_axial_basis(s), s=s,
+                      s_dot=np.einsum("ij,njk->nik", mm, blocks.s_dot), theta_dot=blocks.theta_dot @ mm.T)
+
+
 def frame_check(blocks: GyroBlocks, offset: ArrayLike, matrix: ArrayLike) -> tuple[str, float, float]:
     """Does another axis order or sign of the gyro explain the field's turning under the calibration ``(offset,
     matrix)`` far better than its own frame? Each of the 48 signed permutations ``m`` of the rate (``m omega``,
     no bias or scale error) is scored by ``explained``; the best is returned when its unexplained share is at
     most ``FRAME_BETTER`` of the gyro's own frame's: (its name, e.g. ``"(x, y, -z)"``, its share, the own
     frame's share), else ``("", nan, own share)``. Vectorised over blocks: microseconds per frame."""
-    b = np.asarray(offset, dtype=np.float64)
-    w = np.asarray(matrix, dtype=np.float64)
     if not len(blocks):
         return "", float("nan"), float("nan")
-    winv_t, wb = np.linalg.inv(w).T, w @ b
-    shares = []
-    for m in _FRAMES:  # S' = m S, Theta' = Theta m^T; u = axial(W S'^T) - Theta' x W b
-        u = _axial(w @ blocks.s.transpose(0, 2, 1) @ m.T) - np.cross(blocks.theta @ m.T, wb)
-        shares.append(explained(blocks, blocks.d + u @ winv_t))
+    shares = frame_shares(blocks, offset, matrix, _FRAMES)
     own = shares[0]
     if not np.isfinite(shares).any():
         return "", float("nan"), own

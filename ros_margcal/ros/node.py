@@ -123,7 +123,12 @@ _FLOAT_PARAMS: dict[str, tuple[float, float, str]] = {
 _BOOL_PARAMS: dict[str, str] = {
     "partial_fit": "fit what the motion makes observable (a ring or band) when the full validator refuses",
     "early_fit": "publish a first MAP fit on rich motion once its predicted heading error is small",
-    "gyro_aided": "magnetometer: the Imu angular rate (same frame_id, stamps within 20 ms) joins the partial fit",
+    "gyro_aided": "magnetometer: the Imu angular rate (same frame_id, or the only Imu frame; stamps within 20 ms) joins "
+                  "the partial fit",
+}
+_MAG_BOOL: dict[str, str] = {
+    "calibrate_into_imu_frame": "magnetometer with a gyro: publish the calibration in the Imu's frame once its mounting "
+                                "rotation is decided",
 }
 _ACCEL_BOOL: dict[str, str] = {
     "gate_learn_noise": "inactivity gate: widen the threshold to the sensor's learnt rest noise (at most 1e-2)",
@@ -449,13 +454,16 @@ class MargCalNode(Node):
                 self.declare_parameter(f"{s}.{name}", float(getattr(base, name) or 0.0), _fdesc(lo, hi, text))
             for name, text in _ACCEL_BOOL.items():
                 self.declare_parameter(f"{s}.{name}", bool(getattr(base, name)), ParameterDescriptor(description=text))
+        if s == "mag":
+            for name, text in _MAG_BOOL.items():
+                self.declare_parameter(f"{s}.{name}", bool(getattr(base, name)), ParameterDescriptor(description=text))
         return self._config_from(s, {})
 
     def _config_from(self, s: str, changed: dict[str, Any]) -> PipelineConfig:
         """The PipelineConfig of sensor ``s`` from the declared parameters, with ``changed`` applied."""
         base = PipelineConfig.for_sensor(s, unit=self._units[s])
-        accel = [*_ACCEL_GATE, *_ACCEL_BOOL] if s == "accel" else []
-        names = [*_FLOAT_PARAMS, *_INT_PARAMS, *_BOOL_PARAMS, *_READ_ONLY_INT, *accel]
+        own = [*_ACCEL_GATE, *_ACCEL_BOOL] if s == "accel" else [*_MAG_BOOL]
+        names = [*_FLOAT_PARAMS, *_INT_PARAMS, *_BOOL_PARAMS, *_READ_ONLY_INT, *own]
         values: dict[str, Any] = {}
         for name in names:
             key = f"{s}.{name}"

@@ -7,7 +7,10 @@ Imu message, or none, depending on callback order. ``RatePairing`` holds a magne
 the rate nearest to its stamp is known: an Imu message of the same ``frame_id`` stamped at or after it has
 arrived, or ``hold_s`` of arrival time has passed (an IMU slower than the magnetometer, one that
 stopped, one in another frame), then gives it the rate of the Imu message nearest in stamp within
-``window_s``, else none. Magnetometer samples leave in the order they came. Holding delays only the
+``window_s``, else none. A magnetometer whose ``frame_id`` no Imu message carries takes the rates of the one
+Imu frame when there is exactly one (a robot's ``mag_link`` beside its ``imu_link``: the gyro-aided fit checks
+which axis order and rotation the rates are in, ``model/mounting.py``); with two or more it takes none.
+Magnetometer samples leave in the order they came. Holding delays only the
 calibrator's input (by at most ``hold_s``), never the calibrated message, which the node publishes at once.
 """
 
@@ -20,7 +23,8 @@ __all__ = ["RatePairing"]
 
 
 class RatePairing:
-    """Pairs magnetometer samples with the nearest Imu rate of their frame (see the module docstring).
+    """Pairs magnetometer samples with the nearest Imu rate of their frame, or of the only Imu frame (see the module
+    docstring).
 
     Args:
         window_s: the largest stamp difference of a pair, s (``stream.config.GYRO_PAIR_S``).
@@ -58,12 +62,19 @@ class RatePairing:
         held = self._held
         while held:
             t, frame, xyz, arrival = held[0]
-            rates = self._rates.get(frame)
+            rates = self._rates_for(frame)
             if not everything and now - arrival <= self.hold_s and (rates is None or rates[-1][0] < t):
                 break  # a rate stamped at or after t may still come
             held.popleft()
             out.append((t, xyz, self._nearest(rates, t)))
         return out
+
+    def _rates_for(self, frame: str) -> deque[tuple[float, Any]] | None:
+        """The rates of ``frame``, else of the only Imu frame seen (module docstring), else None."""
+        rates = self._rates.get(frame)
+        if rates is None and len(self._rates) == 1:
+            rates = next(iter(self._rates.values()))
+        return rates
 
     def _nearest(self, rates: deque[tuple[float, Any]] | None, t: float) -> Any:
         best, best_dt = None, self.window_s

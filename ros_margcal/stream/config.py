@@ -142,6 +142,8 @@ class PipelineConfig:
     gyro_samples: int = 15000  # ... the last this many samples with their rates (300 s at 50 Hz) ...
     gyro_block_s: float = 1.0  # ... in blocks of this length (the longer, the larger the turn against the noise)
     gyro_scale_std: float = 0.02  # ... the prior sd of each gyro scale error (model/fitting_gyro.py GYRO_SCALE_STD)
+    calibrate_into_imu_frame: bool = False  # magnetometer with a gyro: publish W in the Imu's frame once the mounting
+    # rotation is decided (model/mounting.py)
     partial_min_azimuth: float = 0.9  # ... turned about body z: share of 36 azimuth sectors the field visits
     early_fit: bool = True  # rich motion, uncalibrated: publish a MAP fit once its predicted heading p95 is small ...
     early_heading_p95_deg: float = 1.0  # ... at most this at +-30 deg tilt
@@ -380,6 +382,7 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "gyro_samples": FieldSpec(int, 100, 1_000_000),
     "gyro_block_s": _real(0.0, 60.0, open_lo=True),
     "gyro_scale_std": _real(0.0, 1.0, open_lo=True),
+    "calibrate_into_imu_frame": FieldSpec(bool),
     "early_fit": FieldSpec(bool),
     "early_heading_p95_deg": _real(0.0, 180.0, open_lo=True),
     "early_interval_s": _real(0.0, 3600.0),

@@ -92,6 +92,7 @@ from ..model.heading import (
     inflated,
     with_offset_noise,
 )
+from ..model.mounting import Mounting
 from .config import PipelineConfig, guard_rails
 
 __all__ = ["AZIMUTH_SECTORS", "DEFAULT_INCLINATION_DEG", "NEAR_LEVEL_NORM_REL_STD", "NEAR_LEVEL_TILT_DEG", "RING_AXIS_MAX_DEG",
@@ -165,6 +166,8 @@ class PartialResult:
         gyro_frame: the axis order or signs of the rates that would explain the field's turning far better
             (``fitting_prior.PriorFit.gyro_frame``, e.g. ``"(x, y, -z)"``); "" when none.
         level: the fit held the ring's plane level (a near-level ring without a usable gyro).
+        mounting: with gyro blocks, the magnetometer's rotation against the IMU found from them under this fit's
+            calibration (``model.mounting.find_mounting``; set by ``partial.PartialCalibration``), else None.
     """
 
     calibration: Calibration | None
@@ -182,6 +185,7 @@ class PartialResult:
     gyro_used: bool = False
     gyro_frame: str = ""
     level: bool = False
+    mounting: Mounting | None = None
 
 
 def sphere_radius(points: Array) -> float:
@@ -281,7 +285,8 @@ def heading_figures(cal: Calibration, points: Array, cfg: PipelineConfig) -> tup
             # the buffer has no time order: its slow noise counts as independent samples and the covariance is too
             # small (model.heading: UNORDERED_SD_FACTOR, chosen on the bound benchmark's tuning seeds)
             cov_cal = inflated(posterior_at(points, cal, broad_prior(points, cal.norm)), UNORDERED_SD_FACTOR)
-        return _figures(cov_cal, float(cfg.heading_inclination_deg or DEFAULT_INCLINATION_DEG)), cov_cal
+        inc = DEFAULT_INCLINATION_DEG if cfg.heading_inclination_deg is None else float(cfg.heading_inclination_deg)
+        return _figures(cov_cal, inc), cov_cal
     except (MargCalError, ValueError, ArithmeticError):
         return None
 

@@ -28,6 +28,14 @@ estimate and the decision live in ``observable`` (see its docstring). Here:
   residuals themselves);
 - the status fields: ``partial``, ``updated_parameters``, ``prior_parameters``, the predicted heading
   p95 level and at ±30° (also for a full magnetometer calibration), the tilt seen.
+- the magnetometer's mounting against the IMU (``model.mounting``): with gyro blocks, each series fit (and a full
+  fit whose job carries ``gyro_rows``: ``_full_mounting``) estimates which of the 24 axis-aligned rotations turns
+  the calibrated field into the Imu's frame and the misalignment left, with its sd; the status names it and what to
+  fix (``mounting`` fields). With ``calibrate_into_imu_frame`` (option, off by default) a decided rotation ``q``
+  turns the readings of the series and the gyro rows from then on (those kept too: ``_turn_readings``; a signed
+  permutation, exact), so the series fits run in the IMU's axes: the gyro's rates explain the turning (no "gyro not
+  used"), the ring is judged about the IMU's z, and the published calibration is ``R W' q`` with offset ``q^T b'``
+  (``_published``): its output is the field in the IMU's frame.
 
 The accelerometer's partial fit is never published (a heading figure does not judge it): its status
 says which parameters the poses seen determine and which need more poses (a level ground robot: the
@@ -45,9 +53,10 @@ from numpy.typing import NDArray
 
 from ..model.calibration import Calibration
 from ..model.fitting_geometric import block_means
-from ..model.fitting_gyro import MIN_EXPLAINED, gyro_blocks
+from ..model.fitting_gyro import MIN_EXPLAINED, GyroBlocks, gyro_blocks
 from ..model.fitting_level import LEVEL_TILT_STD_DEG
 from ..model.heading import format_bound
+from ..model.mounting import Mounting, find_mounting, into_imu_frame, turned
 from .config import PipelineConfig
 from .observable import (
     AZIMUTH_SECTORS,
@@ -89,6 +98,9 @@ class PartialCalibration:
     REFIT_GROWTH = 0.5
     """A published partial calibration is refitted once the series grew by this share (its heading error
     falls by about a fifth meanwhile; refitting at every quarter cost twice the fits for little)."""
+    MOUNT_GROWTH = 1.0
+    """A decided mounting is estimated again once the series count grew by this share (tens of ms each: not at
+    every series fit); an undecided one at every series fit with gyro blocks."""
     GYRO_MIN_BLOCKS = 20
     """Fewest gyro blocks (complete, with a rate on every sample) for the gyro to join a series fit."""
     EARLY_MAX_ITER = 50
@@ -135,6 +147,10 @@ class PartialCalibration:
         self._gyro_share = math.nan  # the last series fit's share of the field's turning the gyro accounted for
         self._gyro_short = False  # ... or: it had rates, but too few complete blocks of them
         self._gyro_frame = ""  # ... or: the rates re-ordered or with an axis negated explained it far better
+        self._mounting: Mounting | None = None  # the last series fit's mounting against the IMU (model.mounting)
+        self._mount_applied: Array | None = None  # calibrate_into_imu_frame: the rotation q the readings are turned by ...
+        self._turn_axes = (0, 1.0, 1, 1.0, 2, 1.0)  # ... as (axis, sign) of each turned axis: v'_i = sign v[axis]
+        self._mount_at = 0  # the series count at the last mounting estimate
 
     def _cadence(self) -> tuple[int, float]:
         """(samples, seconds) between evaluations, never fewer than ``refit_every // 2`` samples (the
@@ -161,13 +177,14 @@ class PartialCalibration:
             self._gyro_share = res.gyro_explained
             self._gyro_frame = res.gyro_frame
             self._gyro_short = bool(job.get("gyro_short"))
-        if res is None or job.get("early") or job.get("prior") is not self._prior:
-            return
-        sound = res.calibration is not None and (not res.reason or res.over_limit is not None
-                                                 or res.azimuth < self.config.partial_min_azimuth)
-        self._partial_start = res.calibration if sound else None
-        if math.isfinite(res.sigma) and res.sigma > 0:
-            self._partial_sigma = res.sigma
+        if res is not None and not job.get("early") and job.get("prior") is self._prior:
+            sound = res.calibration is not None and (not res.reason or res.over_limit is not None
+                                                     or res.azimuth < self.config.partial_min_azimuth)
+            self._partial_start = res.calibration if sound else None
+            if math.isfinite(res.sigma) and res.sigma > 0:
+                self._partial_sigma = res.sigma
+        if res is not None and not job.get("early") and res.calibration is not None:
+            self._mount_note(job.get("mounting"))  # last: a new turn of the readings drops the start just kept
 
     def _partial_close(self, job: dict[str, Any]) -> None:
         self._partial_noise(job)
@@ -181,8 +198,8 @@ class PartialCalibration:
             grow = res.heading_seen_deg / res.over_limit - 1.0
         elif res is not None and not res.over_limit and 0.0 < res.azimuth < cfg.partial_min_azimuth:
             grow = cfg.partial_min_azimuth / res.azimuth - 1.0  # turning adds azimuths about linearly in time
-            if not job.get("early"):  # (an early fit's quarter comes in seconds anyway)
-                self._watch_azimuths(res.calibration, job.get("series"))
+            if not job.get("early") and job.get("mount_applied") is self._mount_applied:  # (an early fit's quarter
+                self._watch_azimuths(res.calibration, job.get("series"))  # comes in seconds; a new turn: other axes)
         self._partial_growth = min(max(grow, self.PARTIAL_GROWTH), self.PARTIAL_GROWTH_MAX)
 
     def _watch_azimuths(self, cal: Calibration | None, series: Array | None) -> None:
@@ -222,6 +239,8 @@ class PartialCalibration:
             return
         self._series_t = t
         k = acc[4]
+        if self._mount_applied is not None:  # sums of the raw readings; their mean turned (the spread is the same)
+            acc[0], acc[1], acc[2] = self._turn(acc[0], acc[1], acc[2])
         px, py, pz = acc[0] / k, acc[1] / k, acc[2] / k
         self._series.append((px, py, pz, max(acc[3] / k - px * px - py * py - pz * pz, 0.0)))
         self._series_acc = [0.0, 0.0, 0.0, 0.0, 0.0]
@@ -231,6 +250,8 @@ class PartialCalibration:
 
     def _gyro_push(self, t: float, x: float, y: float, z: float, g: tuple[float, float, float] | None) -> None:
         """One more magnetometer sample for the gyro-aided fit: with its rate, or as a gap once a rate was seen."""
+        if self._mount_applied is not None:
+            x, y, z = self._turn(x, y, z)
         if g is not None:
             self._gyro_buf.append((t, x, y, z, g[0], g[1], g[2]))
         elif self._gyro_buf:
@@ -272,9 +293,11 @@ class PartialCalibration:
         early = len(series) < self.config.min_points
         if early:  # the recent samples until the series is long enough, as block means of EARLY_POINTS at most
             series, spread = block_means(self._recent_v, -(-len(self._recent_v) // self.EARLY_POINTS))
+            series = series if self._mount_applied is None else series @ self._mount_applied.T
         rows = [] if early or not self._gyro_buf else list(self._gyro_buf)  # a copy of references: cheap
         return {**job, "partial": True, "series": series, "spread": spread, "prior": self._prior, "early": early,
-                "gyro_rows": rows, "gyro_seen": bool(self._gyro_buf),
+                "gyro_rows": rows, "gyro_seen": bool(self._gyro_buf), "mount_applied": self._mount_applied,
+                "mount_prev": None if self._mount_due() else self._mounting,
                 "sigma": self._early_sigma if early else self._partial_sigma,
                 "start": None if (early or self._changed) else self._partial_start,  # a sensor change: every start
                 "current_heading": None if cur is None else cur.heading_seen_deg}
@@ -282,21 +305,90 @@ class PartialCalibration:
     def _partial_compute(self, job: dict[str, Any]) -> tuple[Calibration | None, str]:
         gyro = self._gyro_blocks(job["gyro_rows"], job["config"]) if job["gyro_rows"] else None
         job["gyro_short"] = bool(job["gyro_rows"]) and gyro is None
-        res = partial_fit(job["series"], job["prior"], job["config"], spread=job["spread"], recent=job["recent"], gyro=gyro,
-                          current=job["current"],
+        q = job.get("mount_applied")  # calibrate_into_imu_frame: the series and rows are turned by q, so is the rest
+        prior, current, recent = job["prior"], job["current"], job["recent"]
+        if q is not None:
+            prior = None if prior is None else turned(prior, q)
+            current = None if current is None else turned(current, q)
+            recent = np.asarray(recent, dtype=np.float64) @ q.T
+        res = partial_fit(job["series"], prior, job["config"], spread=job["spread"], recent=recent, gyro=gyro,
+                          current=current,
                           stamp=job["t"], sensor=self.sensor, current_heading=job["current_heading"], sigma=job["sigma"],
                           max_iter=self.EARLY_MAX_ITER if job["early"] else job["config"].max_iter, start=job["start"],
                           sigma_tolerance=math.inf if job["early"] else SIGMA_REUSE_TOLERANCE,
                           level_ok=gyro is not None or not job["gyro_seen"])
         job["result"] = res
+        found, prev = None, job.get("mount_prev")
+        if prev is not None:  # decided, and not due again: as it was, on the readings as turned now
+            found = prev if q is None else prev.after_turn(q.T)
+        elif gyro is not None and res.calibration is not None and not job["early"]:
+            found = _mounting(gyro, res.calibration, job["config"])
+            job["mounting"] = found if q is None else found.after_turn(q)
         if res.reason or res.calibration is None:
             return None, res.reason or "partial fit failed"
-        return res.calibration, ""
+        return _published(res.calibration, found, q, job["config"]), ""
+
+    def _turn(self, x: float, y: float, z: float) -> tuple[float, float, float]:
+        """A reading turned by ``_mount_applied`` (an axis-aligned rotation: a signed permutation)."""
+        v = (x, y, z)
+        i, si, j, sj, k, sk = self._turn_axes
+        return si * v[i], sj * v[j], sk * v[k]
+
+    def _mount_due(self) -> bool:
+        """Is the mounting to be estimated again (``MOUNT_GROWTH``)?"""
+        m = self._mounting
+        return m is None or m.rotation is None or self._series_count >= (1.0 + self.MOUNT_GROWTH) * self._mount_at
+
+    def _mount_note(self, mount: Mounting | None) -> None:
+        """Keep a series fit's mounting; with ``calibrate_into_imu_frame``, a decided rotation turns the readings of the
+        next series fits (``_turn_readings``)."""
+        if mount is None:
+            return
+        self._mounting, self._mount_at = mount, self._series_count
+        q = self._mount_applied
+        if self.config.calibrate_into_imu_frame and mount.rotation is not None and (
+                q is None or not np.allclose(mount.rotation, q)):
+            self._turn_readings(mount.rotation)
+
+    def _turn_readings(self, q: Array) -> None:
+        """From now on the series and the gyro rows hold readings turned by ``q`` into the IMU's axes (their rates are
+        the IMU's already): the ones kept are turned too; the last solution, in the old axes, is no start."""
+        dq = q if self._mount_applied is None else q @ self._mount_applied.T
+        self._mount_applied = q
+        cols = [int(np.argmax(np.abs(row))) for row in q]
+        self._turn_axes = (cols[0], float(q[0, cols[0]]), cols[1], float(q[1, cols[1]]), cols[2], float(q[2, cols[2]]))
+        if self._series:
+            arr = np.array(self._series, dtype=np.float64)
+            arr[:, :3] = arr[:, :3] @ dq.T
+            self._series = deque(map(tuple, arr.tolist()), maxlen=self._series.maxlen)
+        if self._gyro_buf:
+            arr = np.array(self._gyro_buf, dtype=np.float64)
+            arr[:, 1:4] = arr[:, 1:4] @ dq.T
+            self._gyro_buf = deque(map(tuple, arr.tolist()), maxlen=self._gyro_buf.maxlen)
+        self._partial_start, self._az_watch = None, None
 
     def _full_figures(self, job: dict[str, Any], cal: Calibration) -> None:
-        """A full magnetometer fit: its heading figures and its symmetric covariance (the next prior), off-lock."""
+        """A full magnetometer fit: its heading figures and its symmetric covariance (the next prior), off-lock (of the
+        fit in the magnetometer's frame when ``_full_mounting`` turned the one to publish)."""
         if self.sensor == "mag":
-            job["figures"] = heading_figures(cal, job["points"], job["config"])
+            job["figures"] = heading_figures(job.get("mag_frame_cal", cal), job["points"], job["config"])
+
+    def _full_mounting(self, job: dict[str, Any], cal: Calibration) -> Calibration:
+        """A full magnetometer fit with the job's gyro rows (``gyro_rows``, as the partial job's): the mounting under it
+        (``job["mounting"]``) and, with ``calibrate_into_imu_frame`` and a decided rotation, the calibration to publish,
+        in the IMU's frame (the fit itself kept as ``job["mag_frame_cal"]``), off-lock."""
+        rows, cfg = job.get("gyro_rows"), job["config"]
+        gyro = self._gyro_blocks(rows, cfg) if self.sensor == "mag" and rows else None
+        if gyro is None:
+            return cal
+        q = job.get("mount_applied")  # the rows' readings are turned by q: so is the calibration judged on them
+        found = _mounting(gyro, cal if q is None else turned(cal, q), cfg)
+        job["mounting"] = found if q is None else found.after_turn(q)
+        mount: Mounting = job["mounting"]
+        if not cfg.calibrate_into_imu_frame or mount.rotation is None:
+            return cal
+        job["mag_frame_cal"] = cal
+        return into_imu_frame(cal, mount)
 
     def _partial_installed(self, job: dict[str, Any], cal: Calibration) -> str:
         """Bookkeeping after ``job``'s calibration was installed; the words the CALIBRATED event adds."""
@@ -310,6 +402,8 @@ class PartialCalibration:
                     f"{','.join(res.from_prior) or 'none'}; heading p95 {format_bound(res.heading_seen_deg)} at the tilt seen "
                     f"({res.tilt_seen_deg:.1f} deg){_level_note(res)}")
         self._partial, self._partial_note = None, ""
+        if job.get("mounting") is not None:
+            self._mount_note(job["mounting"])
         got = job.get("figures")
         if got is not None:
             figs, cov_cal = got
@@ -336,6 +430,7 @@ class PartialCalibration:
                     f"(predicted 95 % bound; typical {format_bound(f.level_typical_deg)} / "
                     f"{format_bound(f.tilt30_typical_deg)})")
         g = self._gyro_share if self._gyro_applies() else math.nan
+        mount = self._mounting  # the last estimate, of a series fit or a full one (``_full_mounting``)
         if math.isfinite(g) and self._gyro_frame:
             out += (f"; gyro not used: the rate accounts for {100 * g:.0f} % of the field's turning as it comes, far "
                     f"more taken as {self._gyro_frame} of the IMU's axes: IMU frame flipped or rotated against the "
@@ -347,6 +442,9 @@ class PartialCalibration:
         elif self._gyro_short and self._gyro_applies():
             out += (f"; gyro not used: fewer than {self.GYRO_MIN_BLOCKS} blocks of {self.config.gyro_block_s:g} s with a "
                     "rate on every sample (an Imu message within 20 ms of each MagneticField one, same frame_id?)")
+        if mount is not None:
+            note = mount.message(into_imu=self._mount_applied is not None)
+            out += f"; {note}" if note else ""
         if self._partial_note:
             out += f"; {self._partial_note}"
         return out
@@ -371,4 +469,33 @@ class PartialCalibration:
             else f.tilt30_typical_deg,
             "tilt_seen_deg": None if (p is None or cal is None) else p.tilt_seen_deg,
             "gyro_explained": self._gyro_share if (math.isfinite(self._gyro_share) and self._gyro_applies()) else None,
+            **_mount_fields(self._mounting),
         }
+
+
+def _mounting(blocks: GyroBlocks, cal: Calibration, cfg: PipelineConfig) -> Mounting:
+    """The mounting under a series fit's calibration (its covariance when over the symmetric parameters)."""
+    cov = cal.covariance if tuple(cal.parameter_names) == SYM_NAMES else None
+    return find_mounting(blocks, cal.offset, cal.matrix, cov, gyro_scale_std=cfg.gyro_scale_std)
+
+
+def _published(cal: Calibration, found: Mounting | None, q: Array | None, cfg: PipelineConfig) -> Calibration:
+    """The calibration to publish from a series fit's ``cal`` on readings turned by ``q`` (None: as they come): with
+    ``calibrate_into_imu_frame``, its output in the IMU's frame, ``R W' q`` (``R`` the rotation ``found`` on the turned
+    readings, the identity while undecided; ``into_imu_frame``), the offset ``q^T b'`` of the raw readings."""
+    if not cfg.calibrate_into_imu_frame:
+        return cal
+    if found is not None and found.rotation is not None:
+        cal = into_imu_frame(cal, found)
+    if q is None:
+        return cal
+    return cal.replace(offset=q.T @ np.asarray(cal.offset, dtype=np.float64),
+                       matrix=np.asarray(cal.matrix, dtype=np.float64) @ q, covariance=None, parameter_names=())
+
+
+def _mount_fields(m: Mounting | None) -> dict[str, Any]:
+    """The Status fields of the mounting (``model.mounting``)."""
+    if m is None or m.rotation is None:
+        return {"mounting": "" if m is None else ("mirrored: " + m.mirror if m.mirror else "not determined")}
+    return {"mounting": m.name, "mounting_misalignment_deg": m.misalignment_deg,
+            "mounting_misalignment_sd_deg": m.misalignment_sd_deg}

@@ -94,6 +94,9 @@ class Status:
     heading_typical_tilt30_deg: float | None = None  # ... with roll and pitch up to 30 deg
     tilt_seen_deg: float | None = None  # partial: the tilt range of the data it was fitted on, degrees
     gyro_explained: float | None = None  # magnetometer: share of the field's turning the gyro accounted for (None: no gyro)
+    mounting: str = ""  # magnetometer with a gyro: its axes against the IMU's ("x->-y, y->x, z->z (90 deg about -z)"), ...
+    mounting_misalignment_deg: float | None = None  # ... the small rotation left, degrees ...
+    mounting_misalignment_sd_deg: float | None = None  # ... and its predicted sd (model/mounting.py)
 
     @property
     def name(self) -> str:
@@ -142,6 +145,9 @@ class Status:
             ("heading_typical_tilt30_deg", num(self.heading_typical_tilt30_deg, "{:.3g}")),
             ("tilt_seen_deg", num(self.tilt_seen_deg, "{:.3g}")),
             ("gyro_explained", num(self.gyro_explained, "{:.4g}")),
+            ("mounting", self.mounting),
+            ("mounting_misalignment_deg", num(self.mounting_misalignment_deg, "{:.3g}")),
+            ("mounting_misalignment_sd_deg", num(self.mounting_misalignment_sd_deg, "{:.3g}")),
         ]
         return out
 
@@ -163,7 +169,9 @@ class Status:
             "heading_p95_level_deg": self.heading_p95_level_deg, "heading_p95_tilt30_deg": self.heading_p95_tilt30_deg,
             "heading_typical_level_deg": self.heading_typical_level_deg,
             "heading_typical_tilt30_deg": self.heading_typical_tilt30_deg,
-            "tilt_seen_deg": self.tilt_seen_deg, "gyro_explained": self.gyro_explained,
+            "tilt_seen_deg": self.tilt_seen_deg, "gyro_explained": self.gyro_explained, "mounting": self.mounting,
+            "mounting_misalignment_deg": self.mounting_misalignment_deg,
+            "mounting_misalignment_sd_deg": self.mounting_misalignment_sd_deg,
         }
 
 

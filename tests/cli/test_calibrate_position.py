@@ -13,8 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ros_margcal.cli import main
-from ros_margcal.cli import calibrate_guard
+from ros_margcal.cli import calibrate_guard, main
 from ros_margcal.cli.calibrate_guard import refusal
 from ros_margcal.cli.fit_rescue import config_for, heading_text, inclination_of
 from ros_margcal.model.fitting_core import parameter_names

@@ -243,7 +243,7 @@ def generate(sensor="mag", motion="tumble", duration_s=60.0, rate_hz=50.0, seed=
              effect="none", magnitude=None, t_jump=None, unit=None, lsb=None,
              field_uT=48.0, inclination_deg=60.0, declination_deg=3.0, jitter_s=0.0,
              with_gyro=True, with_temp=False, gyro_noise=0.003, gyro_bias=0.005, gyro_scale=0.0,
-             mount_deg=None) -> dict:
+             mount_deg=None, mag_mount=None, mag_mount_misalign_deg=0.0) -> dict:
     """Simulate one recording; returns {"t","xyz","gyro","temp","truth","meta"} (numpy arrays).
 
     sensor "mag" (field from intensity/inclination/declination, ENU) or "accel" (specific force,
@@ -261,6 +261,12 @@ def generate(sensor="mag", motion="tumble", duration_s=60.0, rate_hz=50.0, seed=
     gyro: body rate + constant bias N(0, gyro_bias) + white N(0, gyro_noise), rad/s; gyro_scale: per-axis
     sensitivity error U(-gyro_scale, gyro_scale) (0.03: the ±3 % tolerance of common MEMS gyros' data sheets),
     drawn after the other gyro draws so that gyro_scale=0 leaves every recording as it was.
+    mag_mount: (3, 3) rotation of the magnetometer's frame against the body (IMU) frame, ``v_imu = mag_mount @
+    v_mag`` (None: the same frame); mag_mount_misalign_deg: a further rotation by this angle about a random axis
+    (its own generator, seeded from ``seed``: the other draws stay as they were), ``v_imu = mag_mount @
+    R_small @ v_mag``. The gyro stays in the body frame; the magnetometer reads in its rotated frame. The truth
+    then carries ``R_mount`` (``mag_mount @ R_small``) and ``R_to_imu``: the rotation from the frame of the
+    symmetric calibration ``W_sym`` to the IMU's (``h_imu = R_to_imu @ W_sym @ (raw - offset)``).
     """
     if sensor not in ("mag", "accel"):
         raise ValueError(f"sensor must be 'mag' or 'accel', got {sensor!r}")
@@ -292,6 +298,9 @@ def generate(sensor="mag", motion="tumble", duration_s=60.0, rate_hz=50.0, seed=
         big_f, f_world = G0, np.array([0.0, 0.0, G0])
         world = acc + f_world
     body = np.einsum("nji,nj->ni", rot, world)  # R^T @ world
+    r_mount = _mount(mag_mount, mag_mount_misalign_deg, seed)
+    if r_mount is not None:
+        body = body @ r_mount  # the magnetometer's frame: v_mag = r_mount^T v_imu
 
     si = 1e-6 if sensor == "mag" else 1.0
     if hard_iron is None:
@@ -377,6 +386,9 @@ def generate(sensor="mag", motion="tumble", duration_s=60.0, rate_hz=50.0, seed=
     if sensor == "mag":  # best achievable by a magnitude-only (symmetric W) calibration
         truth["heading_floor_deg"] = {"level": heading_p95(truth["W_sym"], truth["offset"], truth, 0.0),
                                       "tilt30": heading_p95(truth["W_sym"], truth["offset"], truth, 30.0)}
+    if r_mount is not None:
+        u_w, _, vt_w = np.linalg.svd(w)
+        truth["R_mount"], truth["R_to_imu"] = r_mount, r_mount @ u_w @ vt_w  # W = (U V^T) W_sym
     if effect == "hard_iron_jump":
         truth["offset_after"] = (hard + params["jump"]) * scale
     gyro = None
@@ -395,6 +407,19 @@ def generate(sensor="mag", motion="tumble", duration_s=60.0, rate_hz=50.0, seed=
             "soft_iron": soft_iron, "jitter_s": jitter_s, "gyro_scale": gyro_scale,
             "mount_deg": mount_deg}
     return {"t": t, "xyz": xyz, "gyro": gyro, "temp": temp, "truth": truth, "meta": meta}
+
+
+def _mount(mag_mount, misalign_deg: float, seed: int) -> np.ndarray | None:
+    """The magnetometer's rotation against the body frame (``generate``'s mag_mount), None when none."""
+    if mag_mount is None and not misalign_deg:
+        return None
+    r = np.eye(3) if mag_mount is None else np.asarray(mag_mount, float)
+    if not np.allclose(r @ r.T, np.eye(3), atol=1e-9) or np.linalg.det(r) < 0:
+        raise ValueError(f"mag_mount must be a proper rotation matrix, got {r.tolist()}")
+    if misalign_deg:
+        axis = _unit(np.random.default_rng([int(seed), 28]))
+        r = r @ quat_to_matrix(_qexp(np.deg2rad(float(misalign_deg)) * axis))
+    return r
 
 
 def write_csv(path, rec: dict) -> None:
@@ -420,7 +445,8 @@ def _azimuth_error_deg(cal_body: np.ndarray, rot: np.ndarray, f_world: np.ndarra
 def heading_p95(W, offset, truth: dict, tilt_deg: float = 0.0, n_yaw: int = 360) -> float:
     """95th percentile of |heading error| (deg) of calibration (W, offset) on a yaw grid.
 
-    The raw data are the noise-free truth model ``truth["offset"] + truth["M"] @ b``; attitudes are
+    The raw data are the noise-free truth model ``truth["offset"] + truth["M"] @ b`` (``b`` turned into the
+    magnetometer's frame by ``truth["R_mount"]`` when mounted turned, ``mag_mount``); attitudes are
     level (tilt_deg=0) or all roll, pitch in {-tilt, 0, +tilt}; tilt compensation uses the true attitude.
     """
     yaw = np.arange(n_yaw) * 2 * np.pi / n_yaw
@@ -430,7 +456,10 @@ def heading_p95(W, offset, truth: dict, tilt_deg: float = 0.0, n_yaw: int = 360)
     pitch = np.concatenate([np.full(n_yaw, p) for _, p in rp])
     rot = quat_to_matrix(quat_from_rpy(roll, pitch, np.tile(yaw, len(rp))))
     f = np.asarray(truth["field"], float)
-    raw = truth["offset"] + np.einsum("nji,j->ni", rot, f) @ np.asarray(truth["M"]).T
+    body = np.einsum("nji,j->ni", rot, f)
+    if "R_mount" in truth:  # a magnetometer mounted turned (generate's mag_mount): W must give the IMU's frame
+        body = body @ truth["R_mount"]
+    raw = truth["offset"] + body @ np.asarray(truth["M"]).T
     cal = (raw - np.asarray(offset, float)) @ np.asarray(W, float).T
     return float(np.percentile(np.abs(_azimuth_error_deg(cal, rot, f)), 95))
 

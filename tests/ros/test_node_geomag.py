@@ -24,7 +24,6 @@ from rclpy.node import Node  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.qos import qos_profile_sensor_data  # noqa: E402
 from sensor_msgs.msg import NavSatFix, NavSatStatus  # noqa: E402
-
 from test_node import Harness, context  # noqa: E402, F401  (context: the fixture, a Context of each test's own)
 
 from ros_margcal.model.geomag import field_at  # noqa: E402
@@ -35,7 +34,7 @@ class Gps(Harness):
     """The node under test and a peer node that publishes NavSatFix on gps/fix and records /calib/status
     (``spin_until`` and ``close`` are test_node's harness's)."""
 
-    def __init__(self, context: Context, cal_file: Path, **params: Any) -> None:  # noqa: D107 - no MagneticField peer
+    def __init__(self, context: Context, cal_file: Path, **params: Any) -> None:  # noqa: F811 (test_node's fixture)
         overrides = [Parameter("calibration_file", value=str(cal_file)), Parameter("status_period_s", value=0.1),
                      Parameter("accel.enabled", value=False)]
         overrides += [Parameter(k, value=v) for k, v in params.items()]
@@ -67,7 +66,7 @@ class Gps(Harness):
 
 
 @pytest.fixture
-def gps(context: Context, tmp_path: Path) -> Iterator[Gps]:
+def gps(context: Context, tmp_path: Path) -> Iterator[Gps]:  # noqa: F811 (test_node's fixture)
     """A node without a position, fed from a peer's gps/fix."""
     g = Gps(context, tmp_path / "cal.yaml")
     try:
@@ -76,7 +75,7 @@ def gps(context: Context, tmp_path: Path) -> Iterator[Gps]:
         g.close()
 
 
-def test_position_parameters_set_the_norm_and_inclination(context: Context, tmp_path: Path) -> None:
+def test_position_parameters_set_the_norm_and_inclination(context: Context, tmp_path: Path) -> None:  # noqa: F811 (test_node's fixture)
     """latitude/longitude parameters: the WMM2025 field's norm and inclination, said in the status."""
     g = Gps(context, tmp_path / "cal.yaml", latitude=48.1, longitude=11.6, altitude=520.0)
     try:
@@ -88,7 +87,7 @@ def test_position_parameters_set_the_norm_and_inclination(context: Context, tmp_
         g.close()
 
 
-def test_a_bad_position_parameter_is_refused_and_the_node_runs(context: Context, tmp_path: Path) -> None:
+def test_a_bad_position_parameter_is_refused_and_the_node_runs(context: Context, tmp_path: Path) -> None:  # noqa: F811 (test_node's fixture)
     """latitude 95: an error log line, no field model, the node runs as without a position."""
     g = Gps(context, tmp_path / "cal.yaml", latitude=95.0, longitude=11.6)
     try:

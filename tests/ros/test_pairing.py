@@ -53,14 +53,23 @@ def test_mag_first_or_imu_first_alike() -> None:
 
 
 def test_other_frame_and_a_silent_imu_wait_at_most_hold_s() -> None:
-    """A magnetometer in another frame, or after the IMU stopped, waits at most ``hold_s`` of arrival time,
-    then leaves with the nearest rate within the window, or none; samples leave in order."""
+    """A magnetometer in another frame than the two Imu frames, or after the IMU stopped, waits at most ``hold_s``
+    of arrival time, then leaves with the nearest rate within the window, or none; samples leave in order."""
     p = RatePairing(WINDOW, hold_s=0.25)
     assert p.add_rate(1.0, "imu_link", "g", arrival=0.0) == []
+    assert p.add_rate(1.0, "imu2_link", "h", arrival=0.0) == []
     assert p.add_mag(1.005, "mag_link", "v", arrival=0.0) == []
     assert p.add_mag(1.010, "imu_link", "w", arrival=0.01) == []  # a later rate may still come
     assert len(p) == 2
     assert p.release(0.2) == []
-    assert p.release(0.3) == [(1.005, "v", None), (1.010, "w", "g")]  # the wait is over
+    assert p.release(0.3) == [(1.005, "v", None), (1.010, "w", "g")]  # the wait is over; two Imu frames: none
     assert p.add_mag(5.0, "imu_link", "x", arrival=0.3) == []
     assert p.release(0.6) == [(5.0, "x", None)]  # the IMU is silent: no rate within the window
+
+
+def test_a_magnetometer_in_its_own_frame_takes_the_only_imu_frame_rates() -> None:
+    """mag_link beside one imu_link: the Imu's rates (the fit checks their axes), not none."""
+    p = RatePairing(WINDOW, hold_s=0.25)
+    assert p.add_mag(1.005, "mag_link", "v", arrival=0.0) == []
+    assert p.add_rate(1.0, "imu_link", "g", arrival=0.001) == []
+    assert p.add_rate(1.01, "imu_link", "h", arrival=0.002) == [(1.005, "v", "g")]
