@@ -37,7 +37,9 @@ Rough motion (issue 27): the parts ``rough_tune`` (seeds 11-12, looked at while 
 1301-1303, factors 0.8 and 1.25, reported only) generate the same effects with attitude steps of a few degrees per
 sample at 50 Hz (``ROUGH``, ``tests/independent/rough_motion.py``: a fast-turning, vibrating platform); ``all``
 leaves them out. ``--command-timing`` times the whole ``margcal diagnose`` command (a new process, its imports, the
-validator's retraining and the report included) idle and with the other core kept busy.
+validator's retraining and the report included) idle and with the other core kept busy (``--no-plots``: the
+command's report without its figures). ``--seeds 1401-1403`` runs a part's cases on other seeds (its magnitude
+factors and motion kept): a new set, run once.
 ``--part tune|held|fresh|new|final|last|check|rough_tune|rough|all``. Prints the
 top-1 of each part, the confusion matrix (also ``confusion_independent.png``), tracebacks (must be 0) and
 the time per diagnosis.
@@ -120,12 +122,14 @@ GENERATE_ROUGH = runpy.run_path(str(Path(__file__).resolve().parents[1] / "tests
     "generate_rough"]
 
 
-def jobs(part: str, duration: float) -> list[tuple[str, str, float, str, int, float]]:
-    """(part, effect, magnitude, motion, seed, duration) of every case of ``part``."""
+def jobs(part: str, duration: float, seeds_override: tuple[int, ...] = ()) -> list[tuple[str, str, float, str, int, float]]:
+    """(part, effect, magnitude, motion, seed, duration) of every case of ``part`` (its seeds, or ``seeds_override``
+    with the part's magnitude factors and motion)."""
     out = []
     parts = tuple(p for p in SPLITS if not p.startswith("rough")) if part == "all" else (part,)
     for p in parts:
         seeds, factors = SPLITS[p]
+        seeds = seeds_override or seeds
         for k, seed in enumerate(seeds):
             for motion in MOTIONS:
                 for effect in GEN.EFFECTS:
@@ -214,9 +218,9 @@ def timing(quick: bool) -> dict[str, float]:
     return out
 
 
-def command_timing(quick: bool, busy: bool) -> float:
+def command_timing(quick: bool, busy: bool, plots: bool = True) -> float:
     """Wall time of one whole ``margcal diagnose`` command (a new process) on a 60 s, 50 Hz independent
-    recording, optionally with the other core kept busy by a spinning process."""
+    recording, optionally with the other core kept busy by a spinning process (``plots``: the report's figures)."""
     rec = GEN.generate("mag", "tumble", 60.0, 50.0, 7, effect="none")
     hog = multiprocessing.get_context("fork").Process(target=_busy, daemon=True)
     if busy:
@@ -226,7 +230,8 @@ def command_timing(quick: bool, busy: bool) -> float:
             path = Path(tmp) / "case.csv"
             GEN.write_csv(path, rec)
             cmd = [sys.executable, "-m", "ros_margcal", "diagnose", str(path), "--sensor", "mag", "--norm",
-                   f"{float(rec['truth']['norm']):.6g}", "--out", str(Path(tmp) / "out"), *(["--quick"] if quick else [])]
+                   f"{float(rec['truth']['norm']):.6g}", "--out", str(Path(tmp) / "out"), *(["--quick"] if quick else []),
+                   *([] if plots else ["--no-plots"])]
             t0 = time.monotonic()
             subprocess.run(cmd, check=True, capture_output=True)
             return time.monotonic() - t0
@@ -260,6 +265,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--duration", type=float, default=60.0, help="seconds per recording (50 Hz)")
     p.add_argument("--effects", default="", help="only these generator effects, comma-separated")
     p.add_argument("--motions", default="", help="only these motions, comma-separated")
+    p.add_argument("--seeds", default="",
+                   help="these seeds (comma-separated, A-B for a range) in place of the part's own, with its magnitude "
+                        "factors and motion: a new set, run once")
     p.add_argument("--jobs", type=int, default=1, help="worker processes (the machine is shared: 1)")
     p.add_argument("--out", type=Path, default=Path("bench_out/independent"))
     p.add_argument("--shape-tolerance", type=float, default=0.05,
@@ -268,6 +276,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--timing", action="store_true",
                    help="only time one 60 s / 50 Hz and one 5 min / 100 Hz diagnosis with the other core kept busy")
     p.add_argument("--quick", action="store_true", help="with --timing: time margcal diagnose --quick")
+    p.add_argument("--no-plots", action="store_true", help="with --command-timing: time margcal diagnose --no-plots")
     p.add_argument("--command-timing", action="store_true",
                    help="only time the whole margcal diagnose command (60 s at 50 Hz), idle and with the other core busy")
     p.add_argument("--rescore", action="store_true",
@@ -275,8 +284,9 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     if args.command_timing:
         for busy in (False, True):
-            secs = command_timing(args.quick, busy)
-            print(f"margcal diagnose{' --quick' if args.quick else ''}, 60 s at 50 Hz: {secs:.1f} s, "
+            secs = command_timing(args.quick, busy, plots=not args.no_plots)
+            flags = (" --quick" if args.quick else "") + (" --no-plots" if args.no_plots else "")
+            print(f"margcal diagnose{flags}, 60 s at 50 Hz: {secs:.1f} s, "
                   f"{'the other core kept busy' if busy else 'no extra load'}")
         return 0
     if args.timing:
@@ -286,7 +296,7 @@ def main(argv: list[str] | None = None) -> int:
     global SHAPE_TOLERANCE  # read by the worker processes (forked after this)
     SHAPE_TOLERANCE = args.shape_tolerance
     args.out.mkdir(parents=True, exist_ok=True)
-    todo = jobs(args.part, args.duration)
+    todo = jobs(args.part, args.duration, parse_seeds(args.seeds))
     if args.effects:
         todo = [j for j in todo if j[1] in args.effects.split(",")]
     if args.motions:
@@ -308,6 +318,18 @@ def main(argv: list[str] | None = None) -> int:
                   f"{r['seconds']:5.1f} s  {r['where'][:60]}  "
                   + "  ".join(f"{n} {100 * x:.0f}" for n, x, _ in r.get("ranking", [])), flush=True)
     return report(rows, args.out, args.duration, time.monotonic() - t0)
+
+
+def parse_seeds(text: str) -> tuple[int, ...]:
+    """Seeds of ``--seeds``: comma-separated integers or ``A-B`` ranges (inclusive); empty: none."""
+    out: list[int] = []
+    for item in filter(None, (x.strip() for x in text.split(","))):
+        lo, _, hi = item.partition("-")
+        try:
+            out.extend(range(int(lo), int(hi or lo) + 1))
+        except ValueError:
+            sys.exit(f"--seeds: {item!r} is neither a seed nor a range A-B")
+    return tuple(out)
 
 
 def rescore(log: Path, tolerance: float) -> list[dict[str, Any]]:
@@ -334,9 +356,10 @@ def _row_label(r: dict[str, Any]) -> str:
 def report(rows: list[dict[str, Any]], out: Path, duration: float, seconds: float) -> int:
     """Print the scores per part and motion, the confusion matrix (and its PNG) and the times; the exit code."""
     rows.sort(key=lambda r: (r["part"], r["effect"], r["motion"], r["seed"]))
-    for part, (seeds, factors) in SPLITS.items():
+    for part, (_, factors) in SPLITS.items():
         sel = [r for r in rows if r["part"] == part]
-        if sel:
+        if sel:  # the seeds run (``--seeds`` may replace the part's own)
+            seeds = tuple(sorted({int(r["seed"]) for r in sel}))
             print(_summary(sel, f"{part:5s} (seeds {seeds}, magnitude factors {factors})"))
     for motion in MOTIONS:
         sel = [r for r in rows if r["motion"] == motion]

@@ -64,6 +64,8 @@ def register(subparsers: Any) -> None:
                    help="size (root sum of squares) of the cross-axis terms of W relative to its diagonal that "
                         "counts as the sensor's baseline, not as an ellipsoid_shape gap (default 0: offset and gains only)")
     p.add_argument("--no-validator", action="store_true", help="skip the validator stage and the retraining")
+    p.add_argument("--no-plots", action="store_true",
+                   help="report.html with its tables only: no figures, matplotlib not imported (a few seconds less)")
     p.add_argument("--retrain-sets", type=int, default=None,
                    help=f"simulated sets for the retrained validators, with and without the effect (default "
                         f"{RETRAIN_SETS}, {QUICK_RETRAIN_SETS} with --quick)")
@@ -111,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
             extra = {"holdout": _holdout(rec, args.holdout, diag, options, bar)}
     finally:
         bar.close()
-    jpath, hpath = write_report(diag, args.out, extra=extra)
+    jpath, hpath = write_report(diag, args.out, extra=extra, plots=not args.no_plots)
     print(summary(diag))
     if extra is not None:
         h = extra["holdout"]

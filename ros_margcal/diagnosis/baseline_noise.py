@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 from scipy.signal import lfilter
 
 from ..model.calibration import Calibration
-from .stages import sh_basis
+from .stages import _explained, sh_basis
 
 __all__ = ["ar1_noise", "estimate_slow_noise", "shaped_truth"]
 
@@ -73,8 +73,7 @@ def _slow_offset_rms(t: Array, r: Array, dirs: Array) -> float:
     tau = (t - t[0]) / max(float(np.ptp(t)), 1e-300)
     static = np.column_stack([np.ones(t.size), dirs])
     full = np.hstack([static] + [np.cos(math.pi * k * tau)[:, None] * dirs for k in (1, 2)])
-    f0 = static @ np.linalg.lstsq(static, r, rcond=None)[0]
-    f1 = full @ np.linalg.lstsq(full, r, rcond=None)[0]
+    f0, f1 = _explained(r, static), _explained(r, full)
     return float(np.sqrt(np.mean((f1 - f0) ** 2)))
 
 

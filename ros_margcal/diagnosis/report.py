@@ -268,8 +268,11 @@ def _replace_together(contents: dict[Path, str]) -> None:
         raise
 
 
-def write_report(diag: Diagnosis, out_dir: str | Path, *, extra: dict[str, Any] | None = None) -> tuple[Path, Path]:
-    """Write ``diagnosis.json`` and ``report.html`` into ``out_dir`` (created); returns both paths.
+def write_report(diag: Diagnosis, out_dir: str | Path, *, extra: dict[str, Any] | None = None,
+                 plots: bool = True) -> tuple[Path, Path]:
+    """Write ``diagnosis.json`` and ``report.html`` into ``out_dir`` (created); returns both paths. Without
+    ``plots`` the report has its tables only and matplotlib is not imported (its import and the three figures are
+    several seconds of a quick diagnosis).
 
     Both are rendered first and replace the previous pair together (``_replace_together``): an
     interrupt (Ctrl-C) or an error while rendering or writing leaves the previous files as they were.
@@ -286,7 +289,7 @@ def write_report(diag: Diagnosis, out_dir: str | Path, *, extra: dict[str, Any] 
     jpath = out / "diagnosis.json"
     json_text = json.dumps(_json_safe(data), indent=2)
     figs = []
-    if diag.twin is not None:
+    if diag.twin is not None and plots:
         try:
             figs = [_img(_sphere_map(diag), "residual over direction"), _img(_time_plot(diag), "residual over time"),
                     _img(_gap_plot(diag), "stage gaps before and after")]

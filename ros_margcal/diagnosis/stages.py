@@ -60,7 +60,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.linalg import solve_triangular
 from scipy.special import sph_harm_y
 
 from ..model.calibration import Calibration
@@ -101,6 +100,7 @@ _L_MAX = 4
 _K_TIME = 5
 _N_STEPS = 81
 _TINY = 1e-12
+_RCOND_GRAM = 1e-12  # relative eigenvalue of a normal matrix below which a direction is dropped (singular value 1e-6)
 _MAX_ITER = 400  # LM iterations: strong effects make the ellipsoid fit converge slowly
 
 
@@ -226,6 +226,18 @@ def _lstsq(x: Array, r: Array) -> Array:
     return out
 
 
+def _pinv_solve(g: Array, xr: Array) -> Array:
+    """Least-squares coefficients from the normal equations ``g c = xr`` of columns scaled to one size, by the
+    pseudo-inverse of ``g`` (eigenvalues below ``_RCOND_GRAM`` of the largest dropped: exactly collinear columns,
+    as the ellipsoid's scale and the constant). A small eigen-decomposition, not a LAPACK least-squares driver on
+    the tall matrix: those run many threaded steps, each of which waits for a busy core (100 times slower with
+    the other core busy)."""
+    w, v = np.linalg.eigh(g)
+    keep = w > _RCOND_GRAM * max(float(w[-1]), _TINY)
+    out: Array = v[:, keep] @ ((v[:, keep].T @ xr) / w[keep])
+    return out
+
+
 def _explained(r: Array, x: Array) -> Array:
     """The least-squares fit of ``r`` on the columns of ``x``."""
     return x @ _lstsq(x, r)
@@ -287,7 +299,10 @@ def _step_feature(r: Array, static: Array, slow_off: Array, tau: Array, offset_c
     """
     g0 = slow_off.T @ slow_off
     g0[np.diag_indices_from(g0)] += 1e-9 * max(float(np.trace(g0)) / g0.shape[0], _TINY)
-    q = solve_triangular(np.linalg.cholesky(g0), slow_off.T, lower=True).T  # orthonormal columns spanning slow_off
+    # orthonormal columns spanning slow_off, q = slow_off V diag(w)^-1/2 from the small eigen-decomposition of its
+    # normal matrix (a triangular solve on the tall matrix runs threaded BLAS steps that wait for a busy core)
+    w, v = np.linalg.eigh(g0)
+    q = slow_off @ (v / np.sqrt(np.maximum(w, _TINY)))
     left = r - q @ (q.T @ r)
     # every change point at once: the step columns are offset_cols on the samples with tau >= c, so
     # their products with q, themselves and ``left`` are tail sums (tau is non-decreasing)
@@ -348,9 +363,10 @@ def _cubic_feature(pts: Array, cal: Calibration | None) -> float:
     cubic = grad * (full / max(float(np.max(np.abs(full))), _TINY)) ** 3
     x1 = np.hstack([*tangent, cubic])
     x1 = x1 / np.maximum(np.sqrt(np.mean(x1**2, axis=0)), _TINY)
-    x0 = x1[:, : x1.shape[1] - 3]
-    f0 = x0 @ np.linalg.lstsq(x0, r, rcond=None)[0]
-    f1 = x1 @ np.linalg.lstsq(x1, r, rcond=None)[0]
+    p0 = x1.shape[1] - 3
+    g, xr = x1.T @ x1, x1.T @ r
+    f0 = x1[:, :p0] @ _pinv_solve(g[:p0, :p0], xr[:p0])
+    f1 = x1 @ _pinv_solve(g, xr)
     left = r - f1
     ss = float(left @ left) / max(r.size - x1.shape[1], 1)
     if not ss > 0:
