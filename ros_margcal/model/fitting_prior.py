@@ -319,6 +319,8 @@ def fit_with_prior(points: ArrayLike, prior: Calibration, *, sigma: float | None
             frame = frame_check(term.blocks, alone.calibration.offset, alone.calibration.matrix)[0]
             return dataclasses.replace(alone, gyro_explained=share_g, gyro_frame=frame)
     r = geometric(z, _geo(theta, term), n0, sp)[0]
+    if isinstance(term, LevelTerm):  # the ring's slopes scatter too: in the covariance only (fitting_level)
+        term.weight = term.covariance_weight()
     _, jt = _residuals(z, theta, n0, sp, white, term)
     data_info = jt @ jt.T / (s_w * s_w)
     post = np.linalg.inv(data_info + info0)[:9, :9]

@@ -160,6 +160,7 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         self._pre_change: tuple[Any, Any] | None = None  # the buffer's times and points before the change
         self._fit_times, self._fit_points = np.zeros(0), np.zeros((0, 3))  # the buffer when the calibration was installed
         self._predicted: float | None = None
+        self._figures_due = None  # a full fit's heading figures, computed when next read (evaluation.py)
         self._indicators: Any = None
         self._last_rejection = ""
         self._last_reason = "waiting for samples"
@@ -332,6 +333,8 @@ class SensorCalibrator(ChangeDetection, Evaluation):
     def _accept(self, t: float, x: float, y: float, z: float) -> list[Event]:
         events: list[Event] = []
         cfg = self.config
+        if self._figures_due is not None:  # the last full fit's heading figures, a push after it (evaluation.py)
+            self._settle_figures()
         r = self._rel_error(x, y, z) if self._cal is not None else 0.0
         self._recent_t.append(t)
         self._recent_v.append((x, y, z))
@@ -413,6 +416,7 @@ class SensorCalibrator(ChangeDetection, Evaluation):
 
     def status(self, now: float | None = None) -> Status:
         """The status at message time ``now`` (default: the last sample's time)."""
+        self._settle_figures()
         t = self._t if now is None else float(now)
         cal = self._cal
         figures = self._residual_figures()

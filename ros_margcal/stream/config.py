@@ -49,14 +49,13 @@ from ..model.geomag import GeomagField, field_at
 from .units import ACCEL_UNITS, GRAVITY, LEARN_SAMPLES, MAG_UNITS, unit_scale
 
 __all__ = ["ACCEL_UNITS", "FIELD_SPECS", "GRAVITY", "GYRO_PAIR_S", "MAG_UNITS", "STATIC_SPREAD", "FieldSpec",
-           "PipelineConfig", "guard_rails",
-           "plausibility", "raise_hint", "relative_spread", "rms_relative"]
+           "PipelineConfig", "apart", "guard_rails", "plausibility", "raise_hint", "relative_spread", "rms_relative"]
 
 EARTH_FIELD_RANGE_T = (20e-6, 70e-6)
 """Plausible geomagnetic field strength, tesla."""
 GYRO_PAIR_S = 0.02
-"""A magnetometer message takes the angular rate of the latest Imu message (node, bag replay) when their
-stamps are at most this far apart, s, and their frame_ids are the same (``gyro_aided``)."""
+"""A magnetometer message takes the angular rate of the Imu message nearest in stamp (node, bag replay) when their
+stamps are at most this far apart, s, of its frame_id or of the only Imu frame (``gyro_aided``, ``ros/pairing.py``)."""
 STATIC_SPREAD = 0.03
 """RMS distance of readings from their mean, over their mean norm, below which the sensor has not turned
 (an HMC5883L at rest: 0.2 %; a full turn with an offset of 10 field norms: about 10 %)."""
@@ -419,13 +418,13 @@ def guard_rails(cal: Calibration, cfg: PipelineConfig, recent: NDArray[np.float6
     if current is not None and len(recent) >= 3:
         new_rms, cur_rms = rms_relative(cal, recent), rms_relative(current, recent)
         if new_rms > cur_rms * (1.0 + cfg.not_worse_tolerance):
-            new_text, cur_text = _apart(100 * new_rms, 100 * cur_rms)
+            new_text, cur_text = apart(100 * new_rms, 100 * cur_rms)
             return (f"worse than the current calibration on the last {len(recent)} samples "
                     f"({new_text} % vs {cur_text} %)")
     return ""
 
 
-def _apart(a: float, b: float) -> tuple[str, str]:
+def apart(a: float, b: float) -> tuple[str, str]:
     """``a`` and ``b`` with the fewest significant digits (3 to 8) that tell them apart: a comparison that failed
     shows why ("0.54124 % vs 0.54117 %", not "0.54 % vs 0.54 %")."""
     for digits in range(3, 9):

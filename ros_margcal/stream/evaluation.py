@@ -8,8 +8,11 @@ the centre update and the validator under the caller's lock, the fit on a snapsh
 result installed under it again, a fit whose data went stale meanwhile dropped. An evaluation on
 materially unchanged data (same bins, nearly the same buffer size and recent residual) is skipped with
 an exponential back-off, so a robot that never covers more directions does not pay for the same
-refusal over and over. The buffer is re-binned about a new centre estimate only when the centre moved
-significantly (``_center_moved``): a ring's sphere fit leaves its axial component to the noise.
+refusal over and over. Inline, a full fit's heading figures (tens of ms: the posterior's draws) are not
+computed in the push that installs it but when next needed (``_settle_figures``: the next push, ``status``, or
+an evaluation right after), so one push pays for the fit or for the figures, not for both. The buffer is
+re-binned about a new centre estimate only when the centre moved significantly (``_center_moved``): a ring's
+sphere fit leaves its axial component to the noise.
 
 It uses the calibrator's state (``_buffer``, ``_cal``, ``config``, ``validator``, the recent samples)
 and its helpers ``_install``, ``_set_state`` and ``_recent_points``.
@@ -27,7 +30,7 @@ from numpy.typing import NDArray
 from ..model.calibration import Calibration
 from ..model.errors import MargCalError
 from ..model.fitting import fit
-from .config import PipelineConfig, guard_rails
+from .config import PipelineConfig, apart, guard_rails
 from .partial import PartialCalibration
 from .status import Event, EventKind, State, pct
 
@@ -66,6 +69,7 @@ class Evaluation(PartialCalibration):
     _last_full: tuple[tuple[Any, ...], tuple[Any, ...]] | None = None  # what the last full evaluation saw
     _full_eval_t: float = -math.inf
     _backoff: int = 0
+    _figures_due: tuple[dict[str, Any], Calibration] | None = None  # an installed full fit whose figures are not read yet
 
     def refit(self, t: float | None = None) -> list[Event]:
         """Validate and fit now, ignoring the cadence (the refit service). The validator still decides."""
@@ -198,11 +202,15 @@ class Evaluation(PartialCalibration):
                 self._pending = t
                 return []
         events, job = self._validate(t, force=force)
-        return events if job is None else events + self._fit_finish(job, self._fit_compute(job))
+        if job is None:
+            return events
+        job["figures_later"] = True  # inline: the figures when next read (module docstring)
+        return events + self._fit_finish(job, self._fit_compute(job))
 
     def _validate(self, t: float, *, force: bool) -> tuple[list[Event], dict[str, Any] | None]:
         """Centre, indicators and the validator's verdict: the events, and the fit to run (or None)."""
         cfg = self.config
+        self._settle_figures()  # the last fit's figures are its prior for a partial fit (if no push came between)
         if not force:
             self._backoff = self._backoff + 1 if self._unchanged(t, math.inf) else 0
             self._full_eval_t = t
@@ -259,9 +267,11 @@ class Evaluation(PartialCalibration):
 
     def _fit_job(self, t: float) -> dict[str, Any]:
         """A snapshot of what the fit needs (the fit itself may then run without the lock)."""
+        rows = list(self._gyro_buf) if self.sensor == "mag" and self._full_mount_due() else []  # the mounting (partial.py)
         return {"t": t, "points": self._buffer.points(), "recent": self._judge_points(), "current": self._cal,
                 "config": self.config, "buffer": self._buffer, "changes": self.changes,
-                "current_is_map": self._cal is not None and self._partial is not None}
+                "current_is_map": self._cal is not None and self._partial is not None,
+                "gyro_rows": rows, "mount_applied": self._mount_applied}
 
     def _fit_compute(self, job: dict[str, Any]) -> tuple[Calibration | None, str]:
         """The fit and its guard rails on a snapshot: (calibration, "") or (None, the reason)."""
@@ -269,8 +279,29 @@ class Evaluation(PartialCalibration):
             return self._partial_compute(job)
         if job.get("drift"):  # a stale calibration (change.py): re-centred, or refitted if that fits the fresh data better
             got = self._drift_compute(job)
-            return self._drift_choice(job, got, self._full_compute(job)) if job["full"] else got
-        return self._full_compute(job)
+            got = self._drift_choice(job, got, self._full_compute(job)) if job["full"] else got
+        else:
+            got = self._full_compute(job)
+        reason = self._misses_recent(job, got[0])
+        return (None, reason) if reason else got
+
+    def _misses_recent(self, job: dict[str, Any], cal: Calibration | None) -> str:
+        """Why a recheck's calibration must not replace the current one although it passed the guard rails: its
+        median residual on the recent samples is beyond ``change_threshold`` ("" when within, or no recheck).
+
+        Not worse than the current calibration is no yardstick when both miss the recent samples: after a hard-iron
+        jump the samples since are outliers, never buffered, so a recheck refitted (or re-centred) the buffer of
+        before the jump and published it, 49 deg off, until the change detector declared the change 8 s later."""
+        cfg = self.config
+        recent = job["recent"]
+        if cal is None or job["current"] is None or len(recent) < cfg.change_window:
+            return ""
+        med = float(np.median(np.abs(cal.norm_error(recent)) / cal.norm))
+        if med <= cfg.change_threshold:
+            return ""
+        got, limit = apart(100 * med, 100 * cfg.change_threshold)
+        return (f"median residual {got} % on the last {len(recent)} samples > the change threshold {limit} %: "
+                "the sensor may have changed (the change detector decides)")
 
     def _full_compute(self, job: dict[str, Any]) -> tuple[Calibration | None, str]:
         """The full fit of the buffer and its guard rails."""
@@ -289,8 +320,22 @@ class Evaluation(PartialCalibration):
         except (ValueError, ArithmeticError) as exc:  # MargCalError is a ValueError, as is LinAlgError
             return None, f"fit failed: {exc}"
         if not reason:
+            cal = self._full_mounting(job, cal)  # with gyro rows: the mounting, and the IMU's frame if asked (partial.py)
+        if not reason and not job.get("figures_later"):
             self._full_figures(job, cal)
         return (None, reason) if reason else (cal, "")
+
+    def _settle_figures(self) -> None:
+        """The heading figures of the full fit installed last, if not computed yet (``figures_later``): on the
+        same snapshot the fit saw, so they are those the installing push would have computed."""
+        due, self._figures_due = self._figures_due, None
+        if due is None or due[1] is not self._cal:
+            return
+        job, cal = due
+        self._full_figures(job, cal)
+        got = job.get("figures")
+        if got is not None:
+            self._figures, self._prior = got
 
     def _fit_finish(self, job: dict[str, Any], result: tuple[Calibration | None, str]) -> list[Event]:
         """Install the fit (or report its rejection) unless the data it saw went stale meanwhile."""
@@ -310,6 +355,8 @@ class Evaluation(PartialCalibration):
         if self._recentred is not None:
             self._refresh_buffer(job["fitted_at"])
         note = self._partial_installed(job, cal)
+        later = job.get("figures_later") and not job.get("partial") and "figures" not in job
+        self._figures_due = (job, cal) if later else None
         self._last_full = self._signature()
         self.fits_accepted += 1
         self._last_rejection = ""

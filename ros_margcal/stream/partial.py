@@ -151,6 +151,7 @@ class PartialCalibration:
         self._mount_applied: Array | None = None  # calibrate_into_imu_frame: the rotation q the readings are turned by ...
         self._turn_axes = (0, 1.0, 1, 1.0, 2, 1.0)  # ... as (axis, sign) of each turned axis: v'_i = sign v[axis]
         self._mount_at = 0  # the series count at the last mounting estimate
+        self._mount_rows = 0  # the gyro rows at the last mounting estimate (a full fit's: ``_full_mount_due``)
 
     def _cadence(self) -> tuple[int, float]:
         """(samples, seconds) between evaluations, never fewer than ``refit_every // 2`` samples (the
@@ -282,6 +283,8 @@ class PartialCalibration:
         if not (self._cal is None or self._changed or self._partial is not None):
             return False
         grown = self._series_count - self._series_at_attempt
+        if early and self._early_close:  # about to pass: the cadence (early_interval_s) decides, not the growth
+            return self._series_at_attempt < 0 or grown >= 1
         return self._series_at_attempt < 0 or grown >= max(1, self._partial_growth * self._series_len_at_attempt)
 
     def _partial_job(self, job: dict[str, Any]) -> dict[str, Any]:
@@ -339,12 +342,17 @@ class PartialCalibration:
         m = self._mounting
         return m is None or m.rotation is None or self._series_count >= (1.0 + self.MOUNT_GROWTH) * self._mount_at
 
+    def _full_mount_due(self) -> bool:
+        """Is a full fit to estimate the mounting (gyro rows seen; none decided yet, or the rows doubled since)?"""
+        m, n = self._mounting, len(self._gyro_buf)
+        return n > 0 and (m is None or m.rotation is None or n >= (1.0 + self.MOUNT_GROWTH) * self._mount_rows)
+
     def _mount_note(self, mount: Mounting | None) -> None:
         """Keep a series fit's mounting; with ``calibrate_into_imu_frame``, a decided rotation turns the readings of the
         next series fits (``_turn_readings``)."""
         if mount is None:
             return
-        self._mounting, self._mount_at = mount, self._series_count
+        self._mounting, self._mount_at, self._mount_rows = mount, self._series_count, len(self._gyro_buf)
         q = self._mount_applied
         if self.config.calibrate_into_imu_frame and mount.rotation is not None and (
                 q is None or not np.allclose(mount.rotation, q)):

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from ros_margcal.model.errors import ConfigError
 from ros_margcal.stream.calibrator import SensorCalibrator
-from ros_margcal.stream.config import FIELD_SPECS, PipelineConfig, _apart
+from ros_margcal.stream.config import FIELD_SPECS, PipelineConfig, apart
 from ros_margcal.validation.shipped import FallbackValidator
 
 FIELDS = [f.name for f in dataclasses.fields(PipelineConfig)]
@@ -138,9 +138,9 @@ def test_numbers_of_either_python_type_are_accepted() -> None:
 
 @given(st.floats(1e-6, 1e3), st.floats(1e-6, 0.5))
 def test_a_failed_comparison_prints_numbers_that_differ(a: float, rel: float) -> None:
-    """``_apart`` (the 'worse than the current calibration' message): two numbers that differ by at least 1e-6
+    """``apart`` (the 'worse than the current calibration' message): two numbers that differ by at least 1e-6
     relative are printed differently ("0.54124 % vs 0.54117 %", never "0.54 % vs 0.54 %"), each a float again."""
     b = a * (1.0 + rel)
-    sa, sb = _apart(a, b)
+    sa, sb = apart(a, b)
     assert sa != sb
     assert float(sa) <= float(sb)
