@@ -250,9 +250,13 @@ def frame_shares(blocks: GyroBlocks, offset: ArrayLike, matrix: ArrayLike, frame
     ``frames`` (no bias or scale error): ``S' = m S``, ``Theta' = Theta m^T``, vectorised over blocks."""
     b = np.asarray(offset, dtype=np.float64)
     w = np.asarray(matrix, dtype=np.float64)
+    if not frames:
+        return []
     winv_t, k_wb = np.linalg.inv(w).T, skew(w @ b)
     st = w @ blocks.s.transpose(0, 2, 1)
-    return [explained(blocks, blocks.d + (axial(st @ m.T) - blocks.theta @ (m.T @ k_wb)) @ winv_t) for m in frames]
+    mt = np.stack(frames).transpose(0, 2, 1)  # every frame at once (F, 3, 3): one batched product, not F of them
+    r = blocks.d + (axial(st[None] @ mt[:, None]) - blocks.theta @ (mt @ k_wb)) @ winv_t  # (F, N, 3)
+    return [explained(blocks, rf) for rf in r]
 
 
 def rotated_blocks(blocks: GyroBlocks, m: ArrayLike) -> GyroBlocks:

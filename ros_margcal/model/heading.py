@@ -59,6 +59,7 @@ bound / measured from 2.07 to 2.42, and no case's first calibration came later.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -93,6 +94,12 @@ UNORDERED_SD_FACTOR = 2.4
 def attitudes(tilt_deg: float, n_yaw: int = 72) -> Array:
     """Rotation matrices body -> world (K, 3, 3) over a yaw grid, roll and pitch in {-tilt, 0, tilt}
     (``R = R_z(yaw) R_y(pitch) R_x(roll)``, roll outermost, then pitch, then yaw)."""
+    return _attitudes(float(tilt_deg), int(n_yaw)).copy()
+
+
+@functools.lru_cache(maxsize=8)
+def _attitudes(tilt_deg: float, n_yaw: int) -> Array:
+    """``attitudes``, kept for the grids the figures ask again and again (0 and 30 deg); read-only."""
     yaw = np.linspace(0.0, 2.0 * math.pi, n_yaw, endpoint=False)
     cy, sy = np.cos(yaw), np.sin(yaw)
     rz = np.zeros((n_yaw, 3, 3))
@@ -105,7 +112,9 @@ def attitudes(tilt_deg: float, n_yaw: int = 72) -> Array:
             rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
             ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
             out.append(rz @ (ry @ rx))
-    return np.concatenate(out)
+    grid = np.concatenate(out)
+    grid.flags.writeable = False
+    return grid
 
 
 def inclination_deg(cal: Calibration, raw: Array, gravity_body: Array | None = None) -> float:
@@ -228,13 +237,22 @@ def _draw_p95(cal: Calibration, z: Array, tilt_deg: float, inclination: float, n
     if not np.all(np.isfinite(cov)):
         return np.full(len(z), math.nan)
     lam, vec = np.linalg.eigh(0.5 * (cov + cov.T))
-    grad = heading_gradient(cal, attitudes(tilt_deg, n_yaw), inclination=inclination)
-    errors = np.abs(z @ (grad @ (vec * np.sqrt(np.clip(lam, 0.0, None)))).T)  # (draws, attitudes)
+    grad = heading_gradient(cal, _attitudes(float(tilt_deg), int(n_yaw)), inclination=inclination)
+    errors = z @ (grad @ (vec * np.sqrt(np.clip(lam, 0.0, None)))).T  # (draws, attitudes)
+    return _row_p95(np.abs(errors, out=errors))
+
+
+def _row_p95(errors: Array) -> Array:
+    """The 95th percentile of each row (np.percentile's linear rule, to rounding) from one partition in place (the
+    rows are reordered): after it, the next order statistic is the smallest of what lies above the first (a second
+    kth made a second pass, and a copy: 2.5x the time)."""
     k = errors.shape[1]
     pos = 0.95 * (k - 1)
-    lo, hi = math.floor(pos), min(math.floor(pos) + 1, k - 1)
-    part = np.partition(errors, [lo, hi], axis=1)
-    return part[:, lo] + (pos - lo) * (part[:, hi] - part[:, lo])
+    lo = math.floor(pos)
+    errors.partition(lo, axis=1)
+    low = errors[:, lo]
+    high = errors[:, lo + 1:].min(axis=1) if lo + 1 < k else low
+    return low + (pos - lo) * (high - low)
 
 
 def heading_p95_typical(cal: Calibration, *, tilt_deg: float = 0.0, inclination: float = 60.0, n_yaw: int = 72) -> float:

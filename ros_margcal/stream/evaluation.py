@@ -8,9 +8,11 @@ the centre update and the validator under the caller's lock, the fit on a snapsh
 result installed under it again, a fit whose data went stale meanwhile dropped. An evaluation on
 materially unchanged data (same bins, nearly the same buffer size and recent residual) is skipped with
 an exponential back-off, so a robot that never covers more directions does not pay for the same
-refusal over and over. Inline, a full fit's heading figures (tens of ms: the posterior's draws) are not
-computed in the push that installs it but when next needed (``_settle_figures``: the next push, ``status``, or
-an evaluation right after), so one push pays for the fit or for the figures, not for both. The buffer is
+refusal over and over. Inline, a full fit's posterior for the heading figures (``posterior_at``: the next
+prior) is not computed in the push that installs it but when next needed (``_settle_figures``: the next push,
+``status``, or an evaluation right after), so one push pays for the fit or for it, not for both; the figures
+themselves (a few ms each: the posterior's draws) are computed when a status first reads them
+(``observable.HeadingFigures``). The buffer is
 re-binned about a new centre estimate only when the centre moved significantly (``_center_moved``): a ring's
 sphere fit leaves its axial component to the noise.
 

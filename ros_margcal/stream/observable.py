@@ -57,7 +57,9 @@ A refit replaces a partial
 calibration when its predicted heading figure at the tilt seen is lower (instead of the not-worse check
 on the last few seconds' residual, which noise decides as often as the data). The level and ±30° figures go
 into the status, so a user sees that a calibration good when level is poor once the robot tilts past
-what it covered.
+what it covered. They are computed when first read (``HeadingFigures``: a few ms each, the posterior's draws):
+a ring's fit is judged on the figure at the tilt seen alone, so a refused refit pays for no other figure, and an
+installed one's are computed by the first status that shows them (the same values: the draws are fixed).
 
 **Accelerometer.** The same fit runs on the gate's still samples, only to say which parameters the
 poses seen determine (a level ground robot: the z offset and gain); it is never published, as no
@@ -72,6 +74,7 @@ covariance over the symmetric parameters (the published calibration is the full 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -79,7 +82,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..model.calibration import Calibration
-from ..model.errors import MargCalError
+from ..model.errors import InputError, MargCalError
 from ..model.fitting_core import parameter_names
 from ..model.fitting_gyro import GyroBlocks
 from ..model.fitting_prior import broad_prior, fit_with_prior, posterior_at
@@ -125,25 +128,34 @@ class HeadingFigures:
     """Predicted heading error (p95, degrees) of a magnetometer calibration, level and at ±30° tilt: the 95 %
     bound (``level_deg``, ``tilt30_deg``, the publication rules' figure) and the typical figure, the p95 it most
     likely measures (``*_typical_deg``, ``heading.heading_p95_typical`` of ``calibration``, the one with the
-    covariance). The typical figures cost a few ms: computed when a status first asks for them, then kept."""
+    covariance). Each costs a few ms (the posterior's draws): computed when first read, then kept, so a partial fit
+    refused on the figure at the tilt seen pays for no other (the figures are deterministic: the same whenever read)."""
 
-    level_deg: float
-    tilt30_deg: float
     inclination_deg: float
-    calibration: Calibration | None = None
+    calibration: Calibration
+
+    @cached_property
+    def level_deg(self) -> float:
+        return self._figure(heading_p95_quantile, 0.0)
+
+    @cached_property
+    def tilt30_deg(self) -> float:
+        return self._figure(heading_p95_quantile, 30.0)
 
     @cached_property
     def level_typical_deg(self) -> float:
-        return self._typical(0.0)
+        return self._figure(heading_p95_typical, 0.0)
 
     @cached_property
     def tilt30_typical_deg(self) -> float:
-        return self._typical(30.0)
+        return self._figure(heading_p95_typical, 30.0)
 
-    def _typical(self, tilt: float) -> float:
-        if self.calibration is None:
+    def _figure(self, how: Callable[..., float], tilt: float) -> float:
+        """One figure, NaN ("not determined") when it cannot be computed: read by a status, it must not raise."""
+        try:
+            return how(self.calibration, tilt_deg=tilt, inclination=self.inclination_deg)
+        except (MargCalError, ValueError, ArithmeticError):
             return math.nan
-        return heading_p95_typical(self.calibration, tilt_deg=tilt, inclination=self.inclination_deg)
 
 
 @dataclass(frozen=True)
@@ -272,8 +284,11 @@ def _inclination(cfg: PipelineConfig, cal: Calibration, raw: Array | None) -> fl
 
 
 def _figures(cal: Calibration, inc: float) -> HeadingFigures:
-    return HeadingFigures(heading_p95_quantile(cal, tilt_deg=0.0, inclination=inc),
-                          heading_p95_quantile(cal, tilt_deg=30.0, inclination=inc), inc, cal)
+    """The figures of ``cal``, each computed when first read (``HeadingFigures``); the covariance checked now."""
+    if cal.covariance is None or tuple(cal.parameter_names) != SYM_NAMES:
+        msg = f"heading figures need a covariance over {SYM_NAMES}"
+        raise InputError(msg)
+    return HeadingFigures(inc, cal)
 
 
 def heading_figures(cal: Calibration, points: Array, cfg: PipelineConfig) -> tuple[HeadingFigures, Calibration] | None:

@@ -44,6 +44,7 @@ z terms only).
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections import deque
 from typing import Any
@@ -263,7 +264,8 @@ class PartialCalibration:
         so the job's options, not the calibrator's)."""
         if len(rows) < self.GYRO_MIN_BLOCKS * 2:  # a block holds two samples at least
             return None
-        arr = np.array(rows, dtype=np.float64)
+        # the rows' floats read in one pass (np.array of 15 000 tuples: 1.5x the time)
+        arr = np.fromiter(itertools.chain.from_iterable(rows), np.float64, count=7 * len(rows)).reshape(-1, 7)
         step = float(np.median(np.diff(arr[:, 0])))
         k = max(2, round(cfg.gyro_block_s / step)) if step > 0 else 2
         blocks = gyro_blocks(arr[:, 0], arr[:, 1:4], arr[:, 4:7], k)
