@@ -237,7 +237,7 @@ def profile(case: str, gyro: bool) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    global CLOCK, STATUS_EVERY_S, FREEZE  # noqa: PLW0603 (one switch for the whole run)
+    global CLOCK, STATUS_EVERY_S, FREEZE
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--base", help="a checkout of another commit: its calibrator is the baseline")
     ap.add_argument("--seeds", default="reported", help="tuning, reported or a comma list")
