@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 from scipy.signal import lfilter
 
 from ..model.calibration import Calibration
-from .stages import _explained, sh_basis
+from .stages import sh_basis
 
 __all__ = ["ar1_noise", "estimate_slow_noise", "shaped_truth"]
 
@@ -26,6 +26,8 @@ Array = NDArray[np.float64]
 _SLOW_MIN_SHARE = 0.04
 _SLOW_SH = 1  # harmonics removed before the slow noise is measured (1: the mean only)
 _SLOW_MAX_RATIO = 1.0
+_SLOW_LAGS = 30  # lags at which the slow noise's covariance is measured
+_SLOW_TAUS = 80  # correlation times tried
 
 
 def ar1_noise(t: Array, std: float, tau: float, rng: np.random.Generator) -> Array:
@@ -43,9 +45,9 @@ def ar1_noise(t: Array, std: float, tau: float, rng: np.random.Generator) -> Arr
 def estimate_slow_noise(t: Array, residual: Array, white: float, dirs: Array) -> tuple[float, float]:
     """Slow (coloured) noise beyond the white noise, from the best fit's norm residual (fractions of the radius).
 
-    What the residual holds beyond its static direction pattern (harmonics to degree 4) is white noise
-    plus a slow part: its autocorrelation at short lags (1-5 samples of ``t``) is the slow part's share
-    ``a`` of the variance, its correlation time the one whose twin residual wanders as much (``_slow_time``). The slow
+    What the residual holds beyond its mean is white noise plus a slow part: its autocorrelation at short lags
+    (1-5 samples of ``t``) is the slow part's share ``a`` of the variance, its correlation time the one whose
+    exponential fits the residual's lag covariances along the directions (``_slow_time``). The slow
     part counts when ``a`` exceeds ``_SLOW_MIN_SHARE`` (white noise alone: ~0.01), with a std of at most
     ``_SLOW_MAX_RATIO`` times the white rest noise ``white`` (a larger slow part is an effect, a drift
     or a temperature course, not noise). Real sensors and the independent test generator have such
@@ -64,32 +66,36 @@ def estimate_slow_noise(t: Array, residual: Array, white: float, dirs: Array) ->
     if share <= _SLOW_MIN_SHARE:
         return 0.0, 1.0
     std = min(math.sqrt(share * den / left.size), _SLOW_MAX_RATIO * white)
-    return std, _slow_time(t, left, dirs, std, math.sqrt(max(den / left.size - std**2, 0.0)))
+    return std, _slow_time(t, left, dirs)
 
 
-def _slow_offset_rms(t: Array, r: Array, dirs: Array) -> float:
-    """RMS of what slowly modulated degree-1 terms (``cos(pi k tau) d``, k = 1, 2) explain of ``r`` beyond
-    the static ones: how much of a residual is an offset that wanders over the recording."""
-    tau = (t - t[0]) / max(float(np.ptp(t)), 1e-300)
-    static = np.column_stack([np.ones(t.size), dirs])
-    full = np.hstack([static] + [np.cos(math.pi * k * tau)[:, None] * dirs for k in (1, 2)])
-    f0, f1 = _explained(r, static), _explained(r, full)
-    return float(np.sqrt(np.mean((f1 - f0) ** 2)))
+def _lag_covariance(t: Array, left: Array, dirs: Array, lags: NDArray[np.intp]) -> tuple[Array, Array]:
+    """Covariance of the slow noise at each lag (samples) and the lag's time: the norm residual sees an offset
+    noise ``n`` along the direction, ``r_i r_j ~ (d_i . d_j) cov(n_i, n_j)``, so the slope of ``r_i r_{i+k}`` on
+    ``d_i . d_{i+k}`` is the per-axis covariance at lag k whatever the motion (white noise adds none at k >= 1)."""
+    cov, lag_t = np.empty(lags.size), np.empty(lags.size)
+    for j, k in enumerate(lags):
+        x = np.einsum("ij,ij->i", dirs[k:], dirs[:-k])
+        cov[j] = float(x @ (left[k:] * left[:-k])) / max(float(x @ x), 1e-300)
+        lag_t[j] = float(np.median(t[k:] - t[:-k]))
+    return cov, lag_t
 
 
-def _slow_time(t: Array, left: Array, dirs: Array, std: float, white: float) -> float:
-    """Correlation time of the slow noise: the one (of a log-spaced grid) whose simulated residual along
-    the recording's directions has the recording's wandering offset (``_slow_offset_rms``, the
-    ``residual_time`` stage's first feature); the norm residual sees the noise only along the turning
-    direction, so its own autocorrelation mostly measures the turning."""
-    span = float(np.ptp(t))
-    target = _slow_offset_rms(t, left, dirs)
-    rng = np.random.default_rng(0)
+def _slow_time(t: Array, left: Array, dirs: Array) -> float:
+    """Correlation time of the slow noise: the AR(1) covariance ``s^2 exp(-lag / tau)``, less the variance of its
+    mean over the recording (the fit's offset takes the mean), that fits the residual's own lag covariances
+    (``_lag_covariance``, lags log-spaced up to a quarter of the recording) best in least squares, ``s^2`` in
+    closed form per ``tau`` of a log-spaced grid from 0.05 s to the recording's span."""
+    n = t.size
+    lags = np.unique(np.geomspace(1, max(n // 4, 2), _SLOW_LAGS).astype(np.intp))
+    cov, lag_t = _lag_covariance(t, left, dirs, lags)
+    span = max(float(np.ptp(t)), 0.1)
     best, best_err = 1.0, math.inf
-    for tau in np.geomspace(0.25, max(0.25 * span, 0.5), 9):
-        got = np.mean([_slow_offset_rms(t, np.einsum("ij,ij->i", dirs, ar1_noise(t, std, float(tau), rng))
-                                        + white * rng.normal(size=t.size), dirs) for _ in range(3)])
-        err = abs(math.log(max(float(got), 1e-300) / max(target, 1e-300)))
+    for tau in np.geomspace(0.05, span, _SLOW_TAUS):
+        u = tau / span  # the fit's offset takes the noise's mean over the recording: its variance, 2u(1 - u(1 - e^-1/u))
+        e = np.exp(-lag_t / tau) - 2.0 * u * (1.0 - u * (1.0 - math.exp(-1.0 / u)))
+        s2 = max(float(cov @ e) / float(e @ e), 0.0)
+        err = float(np.sum((cov - s2 * e) ** 2))
         if err < best_err:
             best, best_err = float(tau), err
     return best

@@ -281,6 +281,17 @@ def _white_noise(pts: Array, h: Array, raw_radius: float, norm: float, step: flo
     return from_residual, why
 
 
+def _shape_fit(pts: Array, truth: Calibration, norm: float | None) -> Calibration | None:
+    """The ``sym`` fit of a recording measured with the closed form (``truth``, its ``lin_auto`` diag fit, fits no
+    cross terms): ``lm`` started from it, or where that does not converge (or ends off the optimum, ``checked_sym``)
+    the algebraic fit; None when neither fits. It gives the cross terms of the sensor's shape and the residual the
+    noise is measured on."""
+    try:
+        return checked_sym(fit(pts, model="sym", method="lm", norm=norm, init=truth, max_iter=_SHAPE_ITER), pts, norm)
+    except MargCalError:
+        return sym_fit(pts, norm, closed_form=True)
+
+
 def build_twin(
     t: Array,
     raw: Array,
@@ -362,13 +373,19 @@ def build_twin(
         else:
             best, truth, h = _closed_form_fits(pts, sub, norm, sensor, exc)
         closed_form = True
+    # a closed-form twin's best is the diag fit, whose residual holds the sensor's shape: the noise is measured on
+    # its sym fit, as it is on the best fit when lm converges, and the directions are taken from it
+    shape = _shape_fit(pts[sub], truth, norm) if change is None and closed_form and best is truth else None
+    noise_fit = best if shape is None else shape
+    if shape is not None:
+        h = shape.apply(pts)
     step = median_step_deg(h)
     skipped: dict[str, str] = {}
     if unfitted:
         skipped["offset_change"] = unfitted
     if np.ptp(times) <= 0:
         skipped["residual_time"] = "the recording has no time span (all timestamps equal)"
-    white = _white_noise(pts, h, truth.raw_radius, best.norm, step) if step <= MAX_STEP_DEG else None
+    white = _white_noise(pts, h, truth.raw_radius, noise_fit.norm, step) if step <= MAX_STEP_DEG else None
     if white is not None and white[1]:
         skipped["rest_noise"] = white[1]
         lengths = np.linalg.norm(h, axis=1, keepdims=True)
@@ -412,21 +429,14 @@ def build_twin(
         msg = f"shape tolerance must be a non-negative fraction, got {shape_tolerance!r}"
         raise InputError(msg)
     if change is None and closed_form and shape_tolerance > 0 and best is truth:
-        # lin_auto fits no cross terms: lm started from the closed form gives them on part of the sphere, or
-        # where it does not converge (or ends off the optimum, ``checked_sym``) the algebraic fit
-        try:
-            shape = checked_sym(fit(pts[sub], model="sym", method="lm", norm=norm, init=truth, max_iter=_SHAPE_ITER),
-                                pts[sub], norm)
-        except MargCalError:
-            shape = sym_fit(pts[sub], norm, closed_form=True)
-        if shape is not None:
+        if shape is not None:  # lin_auto fits no cross terms: those of its sym fit (``_shape_fit``)
             truth = shaped_truth(truth, shape, shape_tolerance, cross_only=True)
     elif change is None:  # a best fitted before the features needed the closed form: its cross terms only
         truth = shaped_truth(truth, best, shape_tolerance, cross_only=closed_form)
     slow = (0.0, 1.0)
-    if rest_noise_raw is None and white is not None and best.stats is not None:
+    if rest_noise_raw is None and white is not None and noise_fit.stats is not None:
         # a rest noise the caller measured (a static recording) is the sensor's whole noise model
-        r_best = np.linalg.norm(best.apply(pts[sub]), axis=1) / best.norm - 1.0
+        r_best = np.linalg.norm(noise_fit.apply(pts[sub]), axis=1) / noise_fit.norm - 1.0
         # measured, not the caller's: extra white noise is no slow noise
         slow = estimate_slow_noise(times[sub], r_best, white[0], dirs[sub])
     truth = truth.replace(sensor=sensor, method="twin")
