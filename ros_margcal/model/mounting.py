@@ -165,7 +165,7 @@ class Mounting:
             return (f"magnetometer mounted rotated against {imu}: {self.name}, {mis}: calibrated into the IMU's frame "
                     "(mag.calibrate_into_imu_frame)")
         pair = (f"'{mag_frame}' and '{imu_frame}'" if mag_frame and imu_frame
-                else "the MagneticField and Imu messages' frame_ids")
+                else "the MagneticField and Imu messages' frame_ids (the node's status: hardware_id, imu_frame_id)")
         return (f"magnetometer mounted rotated against {imu}: {self.name}, {mis}: fix the static transform between "
                 f"{pair} or set mag.calibrate_into_imu_frame")
 

@@ -748,12 +748,14 @@ class MargCalNode(Node):
             self._pub_diag.publish(arr)
 
     def _field_values(self, s: str) -> list[tuple[str, str]]:
-        """The magnetometer's ``field_model`` status value: which model field it is scaled to, or that none is."""
+        """The magnetometer's ``field_model`` status value (which model field it is scaled to, or that none is) and
+        ``imu_frame_id``, the frame of the Imu rates its mounting is found against (its own is ``hardware_id``)."""
         if s != "mag":
             return []
         field = self._configs[s].field_model() if s in self._configs else None
         return [("field_model", field.describe() if field is not None else
-                 "none: no position (parameters latitude/longitude or gps/fix); norm from the data")]
+                 "none: no position (parameters latitude/longitude or gps/fix); norm from the data"),
+                ("imu_frame_id", self._traffic["accel"].frame or "none seen")]
 
 
 def main(args: list[str] | None = None) -> None:

@@ -171,6 +171,7 @@ def test_status_calibration_topic_and_calibrated_stream(harness: Harness, stream
     # every message reached the calibrator: none lost in the node's queue, none left in the worker's
     assert kv["state"] == "calibrated" and int(kv["samples_seen"]) == int(kv["received"]) == len(stream)
     assert kv["worker_backlog"] == "0" and float(kv["callback_max_ms"]) > 0.0
+    assert kv["imu_frame_id"] == "none seen"  # no Imu message: no rates, no mounting reference
     # calibrated messages: same stamps and frame, norm close to the field; reliable output reaches
     # reliable, default-QoS and sensor-data (best-effort) subscribers alike
     assert harness.calibrated and harness.default_qos and harness.calibrated_best_effort

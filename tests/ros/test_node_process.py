@@ -91,6 +91,7 @@ def test_nothing_is_lost_from_a_driver_in_another_process(node_process: subproce
             kv = listener.last[s]
             assert int(kv["received"]) == sent[name], f"{s}: {kv['received']} of {sent[name]} received"
             assert int(kv["samples_seen"]) == sent[name], f"{s}: the calibrator took {kv['samples_seen']} of {sent[name]}"
+        assert listener.last["mag"]["imu_frame_id"] == "imu_link"  # the frame the mounting is found against
         assert node_process.poll() is None, "the node ended"
     finally:
         listener.close()
