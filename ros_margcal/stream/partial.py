@@ -345,9 +345,12 @@ class PartialCalibration:
         return m is None or m.rotation is None or self._series_count >= (1.0 + self.MOUNT_GROWTH) * self._mount_at
 
     def _full_mount_due(self) -> bool:
-        """Is a full fit to estimate the mounting (gyro rows seen; none decided yet, or the rows doubled since)?"""
+        """Is a full fit to estimate the mounting (gyro rows seen and grown since the last estimate: by a quarter while
+        undecided, doubled once decided)? A full fit runs at every evaluation; an estimate costs tens of ms, and one
+        that stays undecided (rates of another body, "none fits") must not cost them at every evaluation."""
         m, n = self._mounting, len(self._gyro_buf)
-        return n > 0 and (m is None or m.rotation is None or n >= (1.0 + self.MOUNT_GROWTH) * self._mount_rows)
+        growth = 0.25 if m is None or m.rotation is None else self.MOUNT_GROWTH
+        return n > 0 and (m is None or n >= (1.0 + growth) * self._mount_rows)
 
     def _mount_note(self, mount: Mounting | None) -> None:
         """Keep a series fit's mounting; with ``calibrate_into_imu_frame``, a decided rotation turns the readings of the

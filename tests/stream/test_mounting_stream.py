@@ -5,6 +5,7 @@ calibration gives the field in the IMU's frame."""
 
 from __future__ import annotations
 
+import dataclasses
 from types import ModuleType
 from typing import Any
 
@@ -12,7 +13,7 @@ import numpy as np
 import pytest
 from conftest import INDEPENDENT
 
-from ros_margcal.model.mounting import ROTATIONS
+from ros_margcal.model.mounting import ROTATIONS, Mounting
 from ros_margcal.stream.calibrator import EventKind, PipelineConfig, SensorCalibrator
 
 GEN: ModuleType = INDEPENDENT
@@ -101,3 +102,20 @@ def test_a_full_fit_with_gyro_rows_gets_the_mounting_and_its_imu_frame_calibrati
     cal = SensorCalibrator("mag", _into_imu())
     assert _feed(cal, rec) and cal.status().partial is False
     assert _worst_deg(cal.calibration, rec) < 2.0, cal.status().message
+
+
+def test_a_full_fit_estimates_the_mounting_only_once_the_rows_grew() -> None:
+    """Undecided (e.g. "none fits"): again after a quarter more gyro rows, not at every evaluation; decided: after
+    the rows doubled (``_full_mount_due``)."""
+    cal = SensorCalibrator("mag")
+    assert not cal._full_mount_due()  # no gyro rows
+    cal._gyro_buf.extend((float(k), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0) for k in range(1000))
+    assert cal._full_mount_due()  # never estimated
+    cal._mounting, cal._mount_rows = Mounting(None, "", reason="none fits"), 1000
+    assert not cal._full_mount_due()
+    cal._gyro_buf.extend((float(k), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0) for k in range(1000, 1260))
+    assert cal._full_mount_due()
+    cal._mounting = dataclasses.replace(cal._mounting, rotation=np.eye(3))
+    assert not cal._full_mount_due()
+    cal._gyro_buf.extend((float(k), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0) for k in range(1260, 2000))
+    assert cal._full_mount_due()
