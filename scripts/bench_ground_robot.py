@@ -140,13 +140,15 @@ def near_level_case(gen: Any, seed: int, gyro: bool, mount: tuple[float, float] 
             "tilt30_pred": getattr(st, "heading_p95_tilt30_deg", None) or np.nan, "own": own, "message": st.message}
 
 
-def near_level(gen: Any, quick: bool, fresh: bool = False) -> None:
-    """The near-level ring of issue 25: a car's attitude (tilt within +-1.5 deg), with and without the gyro."""
+def near_level(gen: Any, quick: bool, fresh: bool = False, seeds: tuple[int, ...] = ()) -> None:
+    """The near-level ring of issue 25: a car's attitude (tilt within +-1.5 deg), with and without the gyro
+    (``seeds``: those instead of the named groups)."""
     print("near-level ring: a car (independent generator, motion 'car'), 300 s at 40 Hz, tilt varying by <= 1.5 deg, "
           "30 uT hard iron")
     print(f"  {'seeds':9s} {'mount':>6s} {'gyro':>4s} {'calibrated':>10s} {'first s':>8s} {'worst lvl':>9s} {'>5 deg':>6s} "
           f"{'bound covers':>12s} {'end lvl meas/pred':>18s} {'end 30 meas/pred':>17s} {'own att p95':>11s}")
     groups = (("tuning", CAR_TUNING), ("held-out", CAR_HELD_OUT)) + ((("fresh", CAR_FRESH),) if fresh else ())
+    groups = (("seeds", seeds),) if seeds else groups
     for name, seeds in groups:
         seeds = seeds[:2] if quick else seeds
         for mount in ((0.0, 0.0), None):
@@ -168,6 +170,17 @@ def near_level(gen: Any, quick: bool, fresh: bool = False) -> None:
     print("  (medians over the calibrated seeds; worst lvl / >5 deg: the measured level p95 of every published calibration;\n"
           "   bound covers: published calibrations whose predicted level 95 % bound >= the measured level p95;\n"
           "   own att p95: the final calibration's heading p95 over the recording's own attitudes, true tilt compensation)")
+
+
+def _seed_range(text: str) -> tuple[int, ...]:
+    """``A-B`` -> seeds A..B-1 (argparse type)."""
+    try:
+        lo, hi = (int(v) for v in text.split("-"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected A-B (two integers), got {text!r}") from None
+    if hi <= lo:
+        raise argparse.ArgumentTypeError(f"empty seed range {text!r}")
+    return tuple(range(lo, hi))
 
 
 def _span(r: np.ndarray) -> str:
@@ -330,6 +343,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--quick", action="store_true", help="two seeds per group")
     p.add_argument("--seconds", type=float, default=300.0, help="ground-robot recording length")
     p.add_argument("--only", choices=("ground", "near-level", "rich", "accel"), help="one group of cases")
+    p.add_argument("--car-seeds", type=_seed_range, default=(), metavar="A-B",
+                   help="near-level: seeds A..B-1 instead of the named groups")
     p.add_argument("--fresh", action="store_true",
                    help="also the fresh ground-robot seeds 300-309 (20 uT hard iron) and 600-609 (25 uT), and the "
                         "near-level seeds 60-65")
@@ -362,7 +377,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.only in (None, "ground"):
         ground(gen, args.quick, args.seconds, args.fresh)
     if args.only in (None, "near-level"):
-        near_level(gen, args.quick, args.fresh)
+        near_level(gen, args.quick, args.fresh, args.car_seeds)
     if args.only in (None, "rich"):
         rich(gen, args.quick)
     if args.only in (None, "accel"):

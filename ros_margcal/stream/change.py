@@ -239,9 +239,12 @@ class ChangeDetection:
         while first_bad < len(resid) - 1 and resid[first_bad] <= cfg.change_threshold:
             first_bad += 1
         onset = float(times[first_bad])
-        single, hypotheses = self._no_change(first_bad, med)
+        single, hypotheses, fitted = self._no_change(first_bad, med)
         if single is not None:  # one calibration explains the buffer and the window: not a change
             self._install(single)
+            # its own heading figures, when next read (evaluation.py ``_settle_figures``): not the old calibration's
+            self._partial, self._figures = None, None
+            self._figures_due = ({"points": fitted, "config": self.config}, single) if self.sensor == "mag" else None
             self.fits_accepted += 1
             self._last_rejection = ""
             msg = f"no sensor change at t={onset:.2f} s: {hypotheses}; recalibrated"
@@ -313,8 +316,9 @@ class ChangeDetection:
         self._last_reason = msg
         return [*events, Event(EventKind.CALIBRATED, t, self.sensor, msg, cal)]
 
-    def _no_change(self, first_bad: int, med: float) -> tuple[Calibration | None, str]:
-        """Test a declared change against the no-change hypothesis: ``(calibration, text)`` when one explains all.
+    def _no_change(self, first_bad: int, med: float) -> tuple[Calibration | None, str, Array]:
+        """Test a declared change against the no-change hypothesis: ``(calibration, text, points it was fitted on)``,
+        the calibration None unless one explains all.
 
         One calibration is refitted on the buffer (the directions seen before) and the whole recent
         window (also the samples before the onset). It is *no change* when that fit passes the guard
@@ -331,15 +335,15 @@ class ChangeDetection:
         assert old is not None
         window = np.array(self._recent_v, dtype=np.float64).reshape(-1, 3)
         buf = self._buffer.points()
-        post = window[first_bad:]
+        post, both = window[first_bad:], np.concatenate([buf, window])
         old_text = f"old calibration: median {pct(med)} since the onset"
         try:
-            cal = fit(np.concatenate([buf, window]), model=cfg.model, method=cfg.method, norm=cfg.reference_norm,
+            cal = fit(both, model=cfg.model, method=cfg.method, norm=cfg.reference_norm,
                       loss=cfg.loss, init="lin_auto", max_iter=cfg.max_iter, sensor=self.sensor, unit=cfg.unit)
             cal = cal.replace(stamp=self._t)
             reason = guard_rails(cal, cfg, post, None)
         except (ValueError, ArithmeticError) as exc:
-            return None, f"{old_text}; one calibration for the buffer and the window could not be fitted ({exc})"
+            return None, f"{old_text}; one calibration for the buffer and the window could not be fitted ({exc})", both
 
         def median(c: Calibration, pts: Array) -> float:
             return float(np.median(np.abs(c.norm_error(pts)) / c.norm)) if len(pts) else 0.0
@@ -354,10 +358,8 @@ class ChangeDetection:
                 f"buffer (tolerance {pct(tol)}: "
                 f"{'half the change threshold' if before else 'twice the old calibration’s on the buffer'})")
         if reason:
-            return None, f"{text}, refused: {reason}"
-        if single_post <= tol and single_buf <= tol:
-            return cal, text
-        return None, text
+            return None, f"{text}, refused: {reason}", both
+        return (cal if single_post <= tol and single_buf <= tol else None), text, both
 
     def _missed_before(self, post: Array, onset: float, med: float) -> str:
         """"; ... missed before the onset ..." when the buffered samples from before the onset in the directions of the

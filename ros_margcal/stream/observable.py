@@ -85,6 +85,7 @@ from ..model.calibration import Calibration
 from ..model.errors import InputError, MargCalError
 from ..model.fitting_core import parameter_names
 from ..model.fitting_gyro import GyroBlocks
+from ..model.fitting_level import circle_centre
 from ..model.fitting_prior import broad_prior, fit_with_prior, posterior_at
 from ..model.heading import (
     UNORDERED_SD_FACTOR,
@@ -251,9 +252,7 @@ def ring_centre(h: Array) -> tuple[float, float]:
     _, sv, vt = np.linalg.svd(h - h.mean(axis=0), full_matrices=False)
     if not (sv[2] <= RING_FLAT * sv[1] and abs(vt[2, 2]) >= math.cos(math.radians(RING_AXIS_MAX_DEG))):
         return 0.0, 0.0
-    a = np.c_[2.0 * h[:, :2], np.ones(len(h))]
-    sol, *_ = np.linalg.lstsq(a, (h[:, :2] ** 2).sum(axis=1), rcond=None)
-    return (float(sol[0]), float(sol[1])) if np.all(np.isfinite(sol)) else (0.0, 0.0)
+    return circle_centre(h[:, :2])
 
 
 def azimuth_sectors(cal: Calibration, raw: Array, centre: tuple[float, float] | None = None) -> Array:

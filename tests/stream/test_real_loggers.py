@@ -161,6 +161,25 @@ def test_a_calibration_poor_in_unseen_directions_is_not_a_change(independent: Mo
     assert _offset_error(cal, rec) < 0.005
 
 
+def test_the_calibration_refitted_for_no_change_has_its_own_heading_figures(independent: ModuleType) -> None:
+    """The calibration "no sensor change" installs is a new fit: the status's heading figures are its own, computed
+    on the samples it was fitted on, not those of the calibration it replaced (they were, once)."""
+    rec = independent.generate("mag", "tumble", duration_s=60.0, rate_hz=50.0, seed=21)
+    truth = rec["truth"]
+    stale = Calibration(truth["offset"] + np.array([0.0, 0.0, 0.15]) * truth["norm"], truth["W_sym"], truth["norm"],
+                        model="sym", sensor="mag", unit="T")
+    cal = SensorCalibrator("mag", calibration=stale)
+    before = after = None
+    for t, v in zip(rec["t"], rec["xyz"], strict=True):
+        figures = cal.status().heading_p95_level_deg
+        if any(e.kind is EventKind.CALIBRATED and "no sensor change" in e.message for e in cal.push(float(t), v)):
+            before, after = figures, cal.status()
+            break
+    assert after is not None
+    assert after.heading_p95_level_deg is not None and after.heading_p95_level_deg != before
+    assert 0.0 < after.heading_p95_level_deg < 2.0 and after.heading_p95_tilt30_deg is not None
+
+
 def test_a_real_hard_iron_step_is_still_a_change_and_says_both_hypotheses(independent: ModuleType) -> None:
     """A hard-iron step of 0.15 field norms: one calibration leaves several times the noise, so it is a change;
     the event names both hypotheses and the next calibration describes the new offset."""
