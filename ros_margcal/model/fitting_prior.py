@@ -43,8 +43,9 @@ prior*: they keep the prior's value up to the coupling with the updated ones, an
 **Coloured noise.** Real sensors drift slowly (1/f noise); the weakly determined terms (the vertical
 cross terms of near-level data, fed by slow tilt) soak it up. For points in time order
 (``time_ordered=True``) the residual noise is modelled as white plus AR(1) (``fitting_noise``: the
-residuals' autocorrelation ``rho_l = c phi^l``, ``l >= 1``, fitted over the lags where it is at least 0.1;
-none: white), and the fit is then repeated as generalised least squares: residuals and Jacobian pass
+residuals' autocorrelation ``rho_l = c phi^l``, ``l >= 1``, matched to what residuals show of such noise once the
+fit took its share along the parameters' directions, ``fitting_noise`` **Absorbed noise**; white when ``c phi`` is
+below 0.1), and the fit is then repeated as generalised least squares: residuals and Jacobian pass
 through the filter ``F`` that whitens that noise (``fitting_noise.whitener``), ``S`` becomes
 ``|F r|^2 / s_e^2 + prior`` with ``s_e`` the noise of the whitened residuals, and the posterior is
 ``(J^T F^T F J / s_e^2 + P_0^-1)^-1``. This is the efficient estimate under that noise, not only an honest
@@ -283,8 +284,8 @@ def fit_with_prior(points: ArrayLike, prior: Calibration, *, sigma: float | None
     elif level:  # two pseudo-observations, no parameters of their own
         term = LevelTerm(pts, 1.0, theta0.size)
     theta, s, iters = _best_solve(z, starts, theta0, info0, chol, n0, sigma, floor, max_iter, sp, term)
-    r = geometric(z, _geo(theta, term), n0, sp)[0]
-    model = noise_model(r) if time_ordered else None
+    r, jt_geo = geometric(z, _geo(theta, term), n0, sp)
+    model = noise_model(r, _absorbed(jt_geo, info0, s)) if time_ordered else None
     white = None if model is None else whitener(model)  # coloured: generalised least squares (module docstring)
     s_w = s if white is None else max(mad_sigma(white(r)), floor)
     if white is not None or term is not None:  # one more solve: weighted, and the gyro at its own noise
@@ -495,6 +496,18 @@ def _residuals(z: Array, theta: Array, n: float, sp: Array | None, white: Whiten
     full[:9, r.size:] = term.weight * jg[:9]
     full[term.at:, r.size:] = term.weight * jg[9:]
     return np.concatenate([r, term.weight * rg]), full
+
+
+def _absorbed(jt: Array, info0: Array, s: float) -> Array:
+    """``U`` (m, p) with ``U U^T = J (J^T J + s^2 P_0^-1)^-1 J^T``: the share of the noise the MAP fit took into its
+    parameters (``fitting_noise``, **Absorbed noise**), ``jt`` the transposed Jacobian of the geometric residuals."""
+    p = len(jt)
+    a = jt @ jt.T + s * s * info0[:p, :p]
+    try:
+        low = np.linalg.cholesky(0.5 * (a + a.T))
+    except np.linalg.LinAlgError:
+        return np.zeros((jt.shape[1], 0))
+    return np.linalg.solve(low, jt).T
 
 
 def _geo(theta: Array, term: Term | None) -> Array:

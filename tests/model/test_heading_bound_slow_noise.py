@@ -41,8 +41,9 @@ def test_offset_noise_must_be_a_finite_non_negative_sd(sd: float) -> None:
 
 def test_a_young_tumble_fit_is_covered_once_the_slow_noise_is_counted(independent: ModuleType) -> None:
     """The independent generator's tumble, 6 s (its AR(1) noise has a 5 s correlation time): the level bound of the
-    time-ordered MAP fit covers 16 of 24 seeds (67 %); with the series' residual noise added to the offset it covers
-    21 (88 %). Without the AR(1) noise the fit's own bound covers 22 (92 %): the slow noise is most of the gap."""
+    time-ordered MAP fit covers 20 of 24 seeds (83 %; 16 before its noise model counted what the fit absorbed,
+    ``fitting_noise``, **Absorbed noise**); with the series' residual noise added to the offset 22 (92 %; 21 before).
+    Without the AR(1) noise the fit's own bound covers 23: the slow noise is most of the gap."""
     covered = {"as is": 0, "offset noise": 0, "white only": 0}
     for seed in range(2000, 2024):
         for key, kw in (("as is", {}), ("white only", {"colored_noise": 0.0})):
@@ -56,6 +57,6 @@ def test_a_young_tumble_fit_is_covered_once_the_slow_noise_is_counted(independen
             covered[key] += heading_p95_quantile(c) >= meas
             if key == "as is":
                 covered["offset noise"] += heading_p95_quantile(with_offset_noise(c, pf.residual_sigma)) >= meas
-    assert covered["as is"] <= 18
-    assert covered["offset noise"] >= 20
-    assert covered["white only"] >= 21
+    assert 19 <= covered["as is"] < covered["offset noise"]
+    assert covered["offset noise"] >= 22
+    assert covered["white only"] >= 22
