@@ -50,6 +50,7 @@ from numpy.typing import NDArray
 
 from ..model.calibration import Calibration
 from ..model.fitting import fit
+from ..model.mounting import Mounting, into_imu_frame
 from .config import STATIC_SPREAD, guard_rails, relative_spread, rms_relative
 from .status import Event, EventKind, State, pct
 
@@ -84,6 +85,7 @@ class ChangeDetection:
     _stale_note: str
     _fit_times: Array
     _fit_points: Array
+    _mounting: Mounting | None  # the magnetometer's last mounting estimate (partial.py)
 
     def _stale(self) -> bool:
         """On a recheck: has the calibration gone stale (module docstring)?
@@ -241,10 +243,14 @@ class ChangeDetection:
         onset = float(times[first_bad])
         single, hypotheses, fitted = self._no_change(first_bad, med)
         if single is not None:  # one calibration explains the buffer and the window: not a change
+            job = {"points": fitted, "config": self.config, "mag_frame_cal": single}
+            mount = self._mounting
+            if self.config.calibrate_into_imu_frame and mount is not None and mount.rotation is not None:
+                single = into_imu_frame(single, mount)  # in the IMU's frame, as the calibration it replaces (partial.py)
             self._install(single)
             # its own heading figures, when next read (evaluation.py ``_settle_figures``): not the old calibration's
             self._partial, self._figures = None, None
-            self._figures_due = ({"points": fitted, "config": self.config}, single) if self.sensor == "mag" else None
+            self._figures_due = (job, single) if self.sensor == "mag" else None
             self.fits_accepted += 1
             self._last_rejection = ""
             msg = f"no sensor change at t={onset:.2f} s: {hypotheses}; recalibrated"

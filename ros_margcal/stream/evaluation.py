@@ -273,7 +273,7 @@ class Evaluation(PartialCalibration):
         return {"t": t, "points": self._buffer.points(), "recent": self._judge_points(), "current": self._cal,
                 "config": self.config, "buffer": self._buffer, "changes": self.changes,
                 "current_is_map": self._cal is not None and self._partial is not None,
-                "gyro_rows": rows, "mount_applied": self._mount_applied}
+                "gyro_rows": rows, "mount_applied": self._mount_applied, "mounting_kept": self._mounting}
 
     def _fit_compute(self, job: dict[str, Any]) -> tuple[Calibration | None, str]:
         """The fit and its guard rails on a snapshot: (calibration, "") or (None, the reason)."""

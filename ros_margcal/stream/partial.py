@@ -392,8 +392,12 @@ class PartialCalibration:
         in the IMU's frame (the fit itself kept as ``job["mag_frame_cal"]``), off-lock."""
         rows, cfg = job.get("gyro_rows"), job["config"]
         gyro = self._gyro_blocks(rows, cfg) if self.sensor == "mag" and rows else None
-        if gyro is None:
-            return cal
+        if gyro is None:  # no estimate this time (throttled, ``_full_mount_due``): a decided one still turns it
+            kept: Mounting | None = job.get("mounting_kept")
+            if not cfg.calibrate_into_imu_frame or kept is None or kept.rotation is None:
+                return cal
+            job["mag_frame_cal"] = cal
+            return into_imu_frame(cal, kept)
         q = job.get("mount_applied")  # the rows' readings are turned by q: so is the calibration judged on them
         found = _mounting(gyro, cal if q is None else turned(cal, q), cfg)
         job["mounting"] = found if q is None else found.after_turn(q)
