@@ -462,6 +462,9 @@ class PartialCalibration:
         if mount is not None:
             note = mount.message(into_imu=self._mount_applied is not None)
             out += f"; {note}" if note else ""
+        if self.config.calibrate_into_imu_frame and self._mount_applied is None and self._cal is not None:
+            out += ("; in the magnetometer's own frame until its mounting against the IMU is decided "
+                    "(mag.calibrate_into_imu_frame)")
         if self._partial_note:
             out += f"; {self._partial_note}"
         return out

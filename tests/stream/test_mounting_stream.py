@@ -143,12 +143,20 @@ def test_a_no_change_refit_stays_in_the_imu_frame() -> None:
 
 def test_every_full_fit_after_the_decision_is_in_the_imu_frame() -> None:
     """A full refit made when no new mounting estimate is due (``_full_mount_due``) keeps the decided one: it was
-    published in the magnetometer's frame (92 deg off, at 97.5 s of this tumble)."""
+    published in the magnetometer's frame (92 deg off, at 97.5 s of this tumble). Before the decision the output is
+    the magnetometer's frame, and the status says so."""
     rec = GEN.generate("mag", "tumble", duration_s=120.0, rate_hz=50.0, seed=25, symmetric_soft_iron=True,
                        hard_iron_mag=30e-6, gyro_scale=0.03, mag_mount=ROTATIONS[TIPPED], mag_mount_misalign_deg=3.0)
     cal = SensorCalibrator("mag", _into_imu())
-    events = _feed(cal, rec)
+    events, said = [], []
+    for t, v, g in zip(rec["t"].tolist(), rec["xyz"].tolist(), rec["gyro"].tolist(), strict=True):
+        for e in cal.push(t, v, g):
+            if e.kind is EventKind.CALIBRATED:
+                events.append(e)
+                said.append("in the magnetometer's own frame until its mounting" in cal.status().message)
     decided = [e for e in events if _worst_deg(e.calibration, rec) < 2.0]
     assert decided, cal.status().message
+    # before the decision the status says the output is still the magnetometer's frame; after, it does not
+    assert said == [e.t < decided[0].t for e in events] and said[0]
     after = [e for e in events if e.t >= decided[0].t]
     assert len(after) >= 2 and all(_worst_deg(e.calibration, rec) < 2.0 for e in after)
