@@ -290,10 +290,22 @@ def _figures(cal: Calibration, inc: float) -> HeadingFigures:
     return HeadingFigures(inc, cal)
 
 
+def _own_frame(cal: Calibration) -> Calibration:
+    """A calibration turned into another frame (``W = R S``, ``mag.calibrate_into_imu_frame``) as the symmetric fit it
+    came from, ``S`` (the polar factor): the figures are the fit's, in the sensor's own frame, as for a fit published
+    turned; the symmetric model's covariance is read at ``S`` (at ``R S`` it was 46 deg where 0.3 deg was right)."""
+    w = np.asarray(cal.matrix, dtype=np.float64)
+    if np.allclose(w, w.T, rtol=0.0, atol=1e-9 * float(np.max(np.abs(w)))):
+        return cal
+    _, sv, vt = np.linalg.svd(w)
+    return cal.replace(matrix=vt.T @ np.diag(sv) @ vt, covariance=None, parameter_names=())
+
+
 def heading_figures(cal: Calibration, points: Array, cfg: PipelineConfig) -> tuple[HeadingFigures, Calibration] | None:
     """Level and ±30° heading figures of a full-path calibration, and the calibration with a covariance over
     the symmetric parameters (module docstring); None when not computable."""
     try:
+        cal = _own_frame(cal)
         cov_cal = cal
         if cal.covariance is None or tuple(cal.parameter_names) != SYM_NAMES:
             # the buffer has no time order: its slow noise counts as independent samples and the covariance is too

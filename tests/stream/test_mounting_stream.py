@@ -13,8 +13,9 @@ import numpy as np
 import pytest
 from conftest import INDEPENDENT
 
-from ros_margcal.model.mounting import ROTATIONS, Mounting
+from ros_margcal.model.mounting import ROTATIONS, Mounting, into_imu_frame
 from ros_margcal.stream.calibrator import EventKind, PipelineConfig, SensorCalibrator
+from ros_margcal.stream.observable import heading_figures
 
 GEN: ModuleType = INDEPENDENT
 TURNED = next(k for k, r in enumerate(ROTATIONS) if np.allclose(r, [[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]))
@@ -160,3 +161,19 @@ def test_every_full_fit_after_the_decision_is_in_the_imu_frame() -> None:
     assert said == [e.t < decided[0].t for e in events] and said[0]
     after = [e for e in events if e.t >= decided[0].t]
     assert len(after) >= 2 and all(_worst_deg(e.calibration, rec) < 2.0 for e in after)
+
+
+def test_the_heading_figures_of_a_calibration_in_the_imu_frame_are_its_fits() -> None:
+    """``R W`` (the IMU's frame) gets the figures of the symmetric fit ``W`` it came from, as a re-centred calibration
+    in that frame needs (read at ``R W`` as if symmetric they were 46 deg for 0.3 deg)."""
+    rec = GEN.generate("mag", "tumble", duration_s=40.0, rate_hz=50.0, seed=25, symmetric_soft_iron=True,
+                       hard_iron_mag=30e-6, gyro_scale=0.03, mag_mount=ROTATIONS[TIPPED], mag_mount_misalign_deg=3.0)
+    cal = SensorCalibrator("mag")
+    assert _feed(cal, rec) and cal._mounting is not None and cal._mounting.rotation is not None
+    pts = cal._buffer.points()
+    own = heading_figures(cal.calibration, pts, cal.config)
+    turned = heading_figures(into_imu_frame(cal.calibration, cal._mounting), pts, cal.config)
+    assert own is not None and turned is not None
+    assert turned[0].level_deg == pytest.approx(own[0].level_deg, rel=1e-6)
+    assert own[0].level_deg < 1.0
+    assert turned[0].tilt30_deg == pytest.approx(own[0].tilt30_deg, rel=1e-6)
