@@ -115,6 +115,8 @@ def _correlation_time(r: Array) -> float:
     n = len(r)
     f = np.fft.rfft(r - r.mean(), 2 * n)
     acf = np.fft.irfft(f * np.conj(f))[:n]
+    if not acf[0] > 0.0:  # a constant series: nothing to correlate
+        return 1.0
     acf = acf / acf[0]
     neg = np.flatnonzero(acf[1:] < 0.0)
     stop = int(neg[0]) + 1 if len(neg) else n
