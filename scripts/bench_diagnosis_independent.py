@@ -36,10 +36,12 @@ and 1.25) was then added and run once on the merged code.
 Rough motion (issue 27): the parts ``rough_tune`` (seeds 11-12, looked at while tuning) and ``rough`` (seeds
 1301-1303, factors 0.8 and 1.25, reported only) generate the same effects with attitude steps of a few degrees per
 sample at 50 Hz (``ROUGH``, ``tests/independent/rough_motion.py``: a fast-turning, vibrating platform); ``all``
-leaves them out. ``--command-timing`` times the whole ``margcal diagnose`` command (a new process, its imports, the
-validator's retraining and the report included) idle and with the other core kept busy (``--no-plots``: the
-command's report without its figures). ``--seeds 1401-1403`` runs a part's cases on other seeds (its magnitude
-factors and motion kept): a new set, run once.
+leaves them out. The ``residual_cubic`` stage's Wald test with the residual's own noise model (a later round of issue
+27) was developed on ``rough_tune``, its seeds 21-32 (``--seeds``) and band recordings of seeds 2001-2020 made
+outside this script, then ``rough`` was run once. ``--command-timing`` times the whole ``margcal diagnose``
+command (a new process, its imports, the validator's retraining and the report included) idle and with the
+other core kept busy (``--no-plots``: the command's report without its figures). ``--seeds 1401-1403`` runs a
+part's cases on other seeds (its magnitude factors and motion kept): a new set, run once.
 ``--part tune|held|fresh|new|final|last|check|rough_tune|rough|all``. Prints the
 top-1 of each part, the confusion matrix (also ``confusion_independent.png``), tracebacks (must be 0) and
 the time per diagnosis.

@@ -6,6 +6,7 @@ fitted to close the gap and ranked by the share it removes (``ranking``); ``core
 ``downstream`` retrains the validator with the found effect, ``report`` writes the JSON and HTML;
 ``changes`` locates an offset step that keeps one calibration from fitting a recording;
 ``baseline_noise`` gives the twin the recording's slow noise and, within a tolerance, its own shape;
+``cubic`` tests an ADC's cubic non-linearity against the residual's own (white and slow) noise;
 ``inputs`` checks the options and takes a recording in file order (a clock that restarts).
 ``ros_margcal.bench.diagnosis`` checks it on recordings whose effect is withheld.
 """

@@ -10,6 +10,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -17,14 +18,12 @@ from numpy.typing import NDArray
 from scipy.signal import lfilter
 
 from ..model.calibration import Calibration
-from .stages import sh_basis
 
-__all__ = ["ar1_noise", "estimate_slow_noise", "shaped_truth"]
+__all__ = ["ar1_noise", "estimate_slow_noise", "shaped_truth", "slow_covariance"]
 
 Array = NDArray[np.float64]
 
 _SLOW_MIN_SHARE = 0.04
-_SLOW_SH = 1  # harmonics removed before the slow noise is measured (1: the mean only)
 _SLOW_MAX_RATIO = 1.0
 _SLOW_LAGS = 30  # lags at which the slow noise's covariance is measured
 _SLOW_TAUS = 80  # correlation times tried
@@ -47,7 +46,7 @@ def estimate_slow_noise(t: Array, residual: Array, white: float, dirs: Array) ->
 
     What the residual holds beyond its mean is white noise plus a slow part: its autocorrelation at short lags
     (1-5 samples of ``t``) is the slow part's share ``a`` of the variance, its correlation time the one whose
-    exponential fits the residual's lag covariances along the directions (``_slow_time``). The slow
+    exponential fits the residual's lag covariances along the directions (``slow_covariance``). The slow
     part counts when ``a`` exceeds ``_SLOW_MIN_SHARE`` (white noise alone: ~0.01), with a std of at most
     ``_SLOW_MAX_RATIO`` times the white rest noise ``white`` (a larger slow part is an effect, a drift
     or a temperature course, not noise). Real sensors and the independent test generator have such
@@ -55,9 +54,7 @@ def estimate_slow_noise(t: Array, residual: Array, white: float, dirs: Array) ->
     """
     if residual.size < 100 or not white > 0 or np.ptp(t) <= 0:
         return 0.0, 1.0
-    basis = sh_basis(dirs)
-    left = residual - basis[:, :_SLOW_SH] @ np.linalg.lstsq(basis[:, :_SLOW_SH], residual, rcond=None)[0]
-    left = left - left.mean()
+    left = residual - residual.mean()
     den = float(left @ left)
     if den <= 0:
         return 0.0, 1.0
@@ -66,39 +63,46 @@ def estimate_slow_noise(t: Array, residual: Array, white: float, dirs: Array) ->
     if share <= _SLOW_MIN_SHARE:
         return 0.0, 1.0
     std = min(math.sqrt(share * den / left.size), _SLOW_MAX_RATIO * white)
-    return std, _slow_time(t, left, dirs)
+    return std, slow_covariance(t, left, dirs)[1]
 
 
 def _lag_covariance(t: Array, left: Array, dirs: Array, lags: NDArray[np.intp]) -> tuple[Array, Array]:
     """Covariance of the slow noise at each lag (samples) and the lag's time: the norm residual sees an offset
     noise ``n`` along the direction, ``r_i r_j ~ (d_i . d_j) cov(n_i, n_j)``, so the slope of ``r_i r_{i+k}`` on
     ``d_i . d_{i+k}`` is the per-axis covariance at lag k whatever the motion (white noise adds none at k >= 1)."""
-    cov, lag_t = np.empty(lags.size), np.empty(lags.size)
+    cov = np.empty(lags.size)
     for j, k in enumerate(lags):
         x = np.einsum("ij,ij->i", dirs[k:], dirs[:-k])
         cov[j] = float(x @ (left[k:] * left[:-k])) / max(float(x @ x), 1e-300)
-        lag_t[j] = float(np.median(t[k:] - t[:-k]))
-    return cov, lag_t
+    return cov, _lag_times(np.ascontiguousarray(t, dtype=np.float64).tobytes(), lags.tobytes())
 
 
-def _slow_time(t: Array, left: Array, dirs: Array) -> float:
-    """Correlation time of the slow noise: the AR(1) covariance ``s^2 exp(-lag / tau)``, less the variance of its
-    mean over the recording (the fit's offset takes the mean), that fits the residual's own lag covariances
-    (``_lag_covariance``, lags log-spaced up to a quarter of the recording) best in least squares, ``s^2`` in
-    closed form per ``tau`` of a log-spaced grid from 0.05 s to the recording's span."""
+@functools.lru_cache(maxsize=4)
+def _lag_times(t_bytes: bytes, lags_bytes: bytes) -> Array:
+    """Median time of each lag (samples) of the times ``t`` (their bytes: a recording and all its twins share one
+    time base, and the cubic stage asks for it at every twin, so it is computed once)."""
+    t, lags = np.frombuffer(t_bytes, dtype=np.float64), np.frombuffer(lags_bytes, dtype=np.intp)
+    out = np.array([float(np.median(t[k:] - t[:-k])) for k in lags])
+    out.flags.writeable = False
+    return out
+
+
+def slow_covariance(t: Array, left: Array, dirs: Array) -> tuple[float, float]:
+    """Variance ``s^2`` and correlation time ``tau`` of the slow noise in a norm residual ``left`` (mean removed):
+    the AR(1) covariance ``s^2 exp(-lag / tau)``, less the variance of its mean over the recording (the fit's offset
+    takes the mean), that fits the residual's own lag covariances (``_lag_covariance``, lags log-spaced up to a
+    quarter of the recording) best in least squares, ``s^2`` in closed form per ``tau`` of a log-spaced grid from
+    0.05 s to the recording's span. No slow noise: ``s^2`` near 0."""
     n = t.size
     lags = np.unique(np.geomspace(1, max(n // 4, 2), _SLOW_LAGS).astype(np.intp))
     cov, lag_t = _lag_covariance(t, left, dirs, lags)
     span = max(float(np.ptp(t)), 0.1)
-    best, best_err = 1.0, math.inf
-    for tau in np.geomspace(0.05, span, _SLOW_TAUS):
-        u = tau / span  # the fit's offset takes the noise's mean over the recording: its variance, 2u(1 - u(1 - e^-1/u))
-        e = np.exp(-lag_t / tau) - 2.0 * u * (1.0 - u * (1.0 - math.exp(-1.0 / u)))
-        s2 = max(float(cov @ e) / float(e @ e), 0.0)
-        err = float(np.sum((cov - s2 * e) ** 2))
-        if err < best_err:
-            best, best_err = float(tau), err
-    return best
+    taus = np.geomspace(0.05, span, _SLOW_TAUS)[:, None]  # one row per correlation time tried
+    u = taus / span  # the fit's offset takes the noise's mean over the recording: its variance, 2u(1 - u(1 - e^-1/u))
+    e = np.exp(-lag_t[None, :] / taus) - 2.0 * u * (1.0 - u * (1.0 - np.exp(-1.0 / u)))
+    s2 = np.maximum((e @ cov) / np.maximum(np.sum(e * e, axis=1), 1e-300), 0.0)
+    j = int(np.argmin(np.sum((cov[None, :] - s2[:, None] * e) ** 2, axis=1)))
+    return float(s2[j]), float(taus[j, 0])
 
 
 def shaped_truth(diag: Calibration, best: Calibration, tolerance: float, *, cross_only: bool = False) -> Calibration:

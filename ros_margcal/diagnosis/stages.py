@@ -26,15 +26,15 @@ The stages, in the order a sample meets them:
     real harmonics ``Y_lm`` up to ``l = 4``): cross-axis terms show at ``l = 2``, cubic
     non-linearity at ``l = 4``, offsets left over at ``l = 1``.
 ``residual_cubic``
-    what a cubic term per axis of the whole reading (offset included: ``k_i v_i^3``, an ADC's non-linearity)
-    explains of the best (``sym``) fit's residual beyond that fit's own parameters, as the square root
-    of the nested F statistic (``_cubic_feature``): relative to the residual left, so a residual that
-    varies in time (drift, a step) does not count as a static pattern. Its regressors are fixed functions of
-    the direction, evaluated on the fitted ellipsoid (not on the noisy readings), so noise enters only
-    through the residual: three degrees of freedom take ~3/n of its power, slow noise more, a static
-    cubic all of its pattern that the ellipsoid cannot mimic. On a band of tilts the ellipsoid mimics
-    most of a cubic and the harmonic powers of ``residual_direction`` (25 coefficients, which slow noise
-    fills as well) hide what is left; this matched three-term projection does not.
+    whether a cubic term per axis of the whole reading (offset included: ``k_i v_i^3``, an ADC's non-linearity)
+    explains the best (``sym``) fit's residual beyond that fit's own parameters (``cubic.cubic_feature``): a Wald
+    test of the three cubic terms with the residual's own noise model, white plus slow (AR(1)) noise seen along
+    the directions, so it is chi-square with 3 degrees of freedom without a cubic whatever the noise's colour;
+    the feature is its normal score, N(0, 1) without a cubic. Its regressors are fixed functions of the
+    direction, evaluated on the fitted ellipsoid (not on the noisy readings). On a band of tilts the ellipsoid
+    mimics most of a cubic and the harmonic powers of ``residual_direction`` (25 coefficients, which slow noise
+    fills as well) hide what is left; this matched three-term test does not. A residual that varies in time
+    (drift, a step) counts as slow noise: it widens the test, it does not pass for a cubic.
 ``residual_time``
     the residual explained by ``cos(pi k tau) Y_lm(d)`` (``tau`` = time scaled to [0, 1]) beyond the
     static ``Y_lm`` (l <= 2; nested least squares): for ``k = 1, 2`` first on the degree-1 harmonics
@@ -62,9 +62,9 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.special import sph_harm_y
 
-from ..model.calibration import Calibration
 from ..model.errors import MargCalError
 from ..model.fitting import fit
+from .cubic import NULL_SD, cubic_feature
 from .downstream import N_SET, validator_errors
 from .fit_checks import lm_diag, sym_fit
 
@@ -90,7 +90,7 @@ STAGE_FLOORS: dict[str, tuple[float, ...]] = {
     "clipping": (0.002,),
     "residual_size": (0.01, 0.01),
     "residual_direction": (0.05, 0.05, 0.05, 0.05),
-    "residual_cubic": (0.3,),
+    "residual_cubic": (NULL_SD,),  # a normal score: its own spread without a cubic
     "residual_time": (0.05, 0.05, 0.05, 0.03, 0.1, 0.05, 0.05),
     "residual_tails": (0.03, 0.02, 0.02, 0.03),
     "validator": (0.05,),
@@ -100,7 +100,6 @@ _L_MAX = 4
 _K_TIME = 5
 _N_STEPS = 81
 _TINY = 1e-12
-_RCOND_GRAM = 1e-12  # relative eigenvalue of a normal matrix below which a direction is dropped (singular value 1e-6)
 _MAX_ITER = 400  # LM iterations: strong effects make the ellipsoid fit converge slowly
 
 
@@ -226,18 +225,6 @@ def _lstsq(x: Array, r: Array) -> Array:
     return out
 
 
-def _pinv_solve(g: Array, xr: Array) -> Array:
-    """Least-squares coefficients from the normal equations ``g c = xr`` of columns scaled to one size, by the
-    pseudo-inverse of ``g`` (eigenvalues below ``_RCOND_GRAM`` of the largest dropped: exactly collinear columns,
-    as the ellipsoid's scale and the constant). A small eigen-decomposition, not a LAPACK least-squares driver on
-    the tall matrix: those run many threaded steps, each of which waits for a busy core (100 times slower with
-    the other core busy)."""
-    w, v = np.linalg.eigh(g)
-    keep = w > _RCOND_GRAM * max(float(w[-1]), _TINY)
-    out: Array = v[:, keep] @ ((v[:, keep].T @ xr) / w[keep])
-    return out
-
-
 def _explained(r: Array, x: Array) -> Array:
     """The least-squares fit of ``r`` on the columns of ``x``."""
     return x @ _lstsq(x, r)
@@ -331,49 +318,6 @@ def _step_feature(r: Array, static: Array, slow_off: Array, tau: Array, offset_c
     return math.log10((max(e2_step - e2_both, 0.0) + eps) / (max(e2_slow - e2_both, 0.0) + eps))
 
 
-def _cubic_feature(pts: Array, cal: Calibration | None) -> float:
-    """How much a cubic term per axis of the whole reading, ``k_i v_i^3``, adds to the ellipsoid fit ``cal``:
-    ``sqrt(F)`` of the nested least-squares test of the three cubic terms against the ellipsoid's own
-    (linearised) parameters on the norm residual, ``F = (dSS / 3) / (SS / (n - p))``. About 1 for white
-    noise, somewhat more for slow noise, far more for a cubic non-linearity the ellipsoid cannot absorb;
-    a residual that varies in time (a drift, an offset step) raises ``SS`` with it, so the cubic's share of
-    it, not its size, counts. NaN when there is no ``sym`` fit.
-
-    The columns are the residual's derivatives with respect to the offset and the symmetric matrix and the
-    cubic's effect on the norm, ``(W^T u)_i v_i^3``, all evaluated at the points projected onto the fitted
-    ellipsoid (``(v - b) / (1 + r) + b``): regressors taken from the noisy readings would correlate with the
-    noise (``3 v_i^2 e_i``) and explain part of it.
-    """
-    if cal is None or cal.model != "sym" or pts.shape[0] < 50:
-        return math.nan
-    w = np.asarray(cal.matrix, dtype=np.float64)
-    b = np.asarray(cal.offset, dtype=np.float64)
-    v = pts - b
-    h = v @ w.T
-    lengths = np.linalg.norm(h, axis=1)
-    if not np.all(lengths > 0):
-        return math.nan
-    r = lengths / float(cal.norm) - 1.0
-    u = h / lengths[:, None]
-    v = v / (1.0 + r)[:, None]
-    grad = u @ w
-    pairs = [(a, c) for a in range(3) for c in range(a, 3)]
-    tangent = [grad, np.ones((r.size, 1))] + [(u[:, a] * v[:, c] + u[:, c] * v[:, a])[:, None] for a, c in pairs]
-    full = v + b
-    cubic = grad * (full / max(float(np.max(np.abs(full))), _TINY)) ** 3
-    x1 = np.hstack([*tangent, cubic])
-    x1 = x1 / np.maximum(np.sqrt(np.mean(x1**2, axis=0)), _TINY)
-    p0 = x1.shape[1] - 3
-    g, xr = x1.T @ x1, x1.T @ r
-    f0 = x1[:, :p0] @ _pinv_solve(g[:p0, :p0], xr[:p0])
-    f1 = x1 @ _pinv_solve(g, xr)
-    left = r - f1
-    ss = float(left @ left) / max(r.size - x1.shape[1], 1)
-    if not ss > 0:
-        return math.nan
-    return math.sqrt(float(np.sum((f1 - f0) ** 2)) / 3.0 / ss)
-
-
 def _rms_log(x: Array) -> float:
     return _log10(float(np.sqrt(np.mean(x**2))))
 
@@ -432,7 +376,7 @@ def stage_features(
     basis = sh_basis(dirs)
     coef, amp = sh_power(r, basis)
     values["residual_direction"] = np.array([_log10(a) for a in amp[1:]])
-    values["residual_cubic"] = np.array([_cubic_feature(pts, sym)])
+    values["residual_cubic"] = np.array([cubic_feature(pts, sym, t[sub])])
     tsub = temp[sub] if temp is not None else None
     if "residual_time" not in skip:
         values["residual_time"] = _time_features(r, basis, t[sub], tsub, basis @ coef)

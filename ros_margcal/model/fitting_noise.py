@@ -44,7 +44,7 @@ from numpy.typing import NDArray
 from scipy.optimize import least_squares
 from scipy.signal import lfilter
 
-__all__ = ["NOISE_RHO_MIN", "Absorbed", "Whitener", "expected_acf", "noise_model", "whitener"]
+__all__ = ["NOISE_RHO_MIN", "Absorbed", "Whitener", "ar1_product", "expected_acf", "noise_model", "whitener"]
 
 Array = NDArray[np.float64]
 
@@ -179,7 +179,7 @@ class Absorbed:
     def _diagonals_ar(self, phi: float) -> Array:
         """Lag sums of ``C K Phi K C`` (``Phi_ts = phi^|t - s|``)."""
         g = (self.m - self.lags) * phi**self.lags
-        return self._diagonals(_ar_cov(self.u, phi), g, lambda v: _ar_cov(v, phi))
+        return self._diagonals(ar1_product(self.u, phi), g, lambda v: ar1_product(v, phi))
 
     def _k(self, v: Array) -> Array:
         return v - self.u @ (self.u.T @ v)
@@ -204,8 +204,9 @@ class Absorbed:
         return d[1:] / d[0]
 
 
-def _ar_cov(v: Array, phi: float) -> Array:
-    """``Phi v`` with ``Phi_ts = phi^|t - s|`` (along the first axis): a forward and a backward AR(1) filter."""
+def ar1_product(v: Array, phi: float) -> Array:
+    """``Phi v`` with ``Phi_ts = phi^|t - s|`` (along the first axis; the AR(1) correlation matrix, unit variance):
+    a forward and a backward AR(1) filter, O(n) where the matrix would be O(n^2)."""
     fwd = lfilter([1.0], [1.0, -phi], v, axis=0)
     bwd = lfilter([1.0], [1.0, -phi], v[::-1], axis=0)[::-1]
     return fwd + bwd - v

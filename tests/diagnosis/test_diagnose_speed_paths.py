@@ -10,7 +10,8 @@ import margcal_independent_generator as gen  # loaded once by tests/conftest.py
 import numpy as np
 
 from ros_margcal.diagnosis import diagnose, write_report
-from ros_margcal.diagnosis.stages import _cubic_feature, _pinv_solve, _step_feature, sh_basis
+from ros_margcal.diagnosis.cubic import _pinv_solve, cubic_wald
+from ros_margcal.diagnosis.stages import _step_feature, sh_basis
 from ros_margcal.model.fitting import fit
 from ros_margcal.recordings.recording import Recording
 
@@ -33,7 +34,8 @@ def _recording(effect: str = "none", motion: str = "band") -> dict:
 
 
 def _lstsq_cubic(pts: np.ndarray, cal) -> float:
-    """The cubic feature as lstsq computes it (the reference the normal equations must match)."""
+    """The cubic test's statistic with white noise only as lstsq computes it, what the cubic terms explain over the
+    noise variance the full fit leaves (the reference the normal equations must match)."""
     w, b = np.asarray(cal.matrix), np.asarray(cal.offset)
     v = pts - b
     h = v @ w.T
@@ -50,17 +52,18 @@ def _lstsq_cubic(pts: np.ndarray, cal) -> float:
     f0 = x1[:, :-3] @ np.linalg.lstsq(x1[:, :-3], r, rcond=None)[0]
     f1 = x1 @ np.linalg.lstsq(x1, r, rcond=None)[0]
     left = r - f1
-    return float(np.sqrt(np.sum((f1 - f0) ** 2) / 3.0 / (left @ left / (r.size - x1.shape[1]))))
+    return float(np.sum((f1 - f0) ** 2) / np.mean((left - left.mean()) ** 2))
 
 
 def test_cubic_feature_matches_lstsq_on_a_band_with_a_cubic() -> None:
-    """On a band (the ellipsoid mimics most of a cubic: nearly collinear columns) and on a clean tumble the
-    feature is lstsq's to 1e-6."""
+    """On a band (the ellipsoid mimics most of a cubic: nearly collinear columns) and on a clean tumble the Wald
+    statistic without a time span (white noise only) is lstsq's to 1e-6."""
     for effect, motion in (("nonlinearity", "band"), ("none", "tumble")):
         pts = _recording(effect, motion)["xyz"]
         cal = fit(pts, model="sym", method="algebraic", norm=4.8e-5)
         ref = _lstsq_cubic(pts, cal)
-        assert abs(_cubic_feature(pts, cal) - ref) <= 1e-6 * max(ref, 1.0), f"{effect} {motion}: {ref}"
+        ours = cubic_wald(pts, cal, np.zeros(len(pts)))
+        assert abs(ours - ref) <= 1e-6 * max(ref, 1.0), f"{effect} {motion}: {ours:.9g} against lstsq's {ref:.9g}"
 
 
 def _step(effect: str) -> float:

@@ -488,21 +488,24 @@ def _band_readings(seed: int, cubic: float = 0.0, shape: float = 0.0, n: int = 3
 
 @pytest.mark.parametrize("seed", [1, 2, 3])
 def test_cubic_feature_sees_a_band_non_linearity_and_not_noise_or_shape(seed: int) -> None:
-    """On a band of tilts (where the ellipsoid mimics most of a cubic) the cubic stage's feature (sqrt of the
-    nested F statistic of three cubic terms) is about 1 for white noise, stays so for a symmetric shape the
-    ellipsoid fits, and rises far above for a cubic non-linearity of the whole reading of 2 %."""
+    """On a band of tilts (where the ellipsoid mimics most of a cubic) the cubic stage's feature (the normal score
+    of the cubic terms' Wald statistic, N(0, 1) without a cubic) stays within the null's range for white noise and
+    for a symmetric shape the ellipsoid fits, and rises far above for a cubic non-linearity of the whole reading
+    of 2 %."""
+    from ros_margcal.diagnosis.cubic import cubic_feature
     from ros_margcal.diagnosis.fit_checks import sym_fit
-    from ros_margcal.diagnosis.stages import _cubic_feature
     from ros_margcal.model.fitting import fit
+
+    t = np.linspace(0.0, 60.0, 3000)
 
     def feature(v: np.ndarray) -> float:
         cal = sym_fit(v, 48.0, closed_form=False) or fit(v, model="sym", method="lin_auto", norm=48.0)
-        return _cubic_feature(v, cal)
+        return cubic_feature(v, cal, t)
 
     plain = feature(_band_readings(seed))
     shaped = feature(_band_readings(seed, shape=0.08))
     cubic = feature(_band_readings(seed, cubic=0.02))
-    assert 0.05 < plain < 3.5
-    assert 0.05 < shaped < 3.5
-    assert cubic > 5.0 * max(plain, shaped, 1.0)
-    assert np.isnan(_cubic_feature(_band_readings(seed), None))
+    assert -3.5 < plain < 3.5
+    assert -3.5 < shaped < 3.5
+    assert cubic > 10.0, f"a 2 % cubic on a band: {cubic:.3g}"
+    assert np.isnan(cubic_feature(_band_readings(seed), None, t))
