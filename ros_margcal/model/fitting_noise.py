@@ -185,7 +185,7 @@ class Absorbed:
         return v - self.u @ (self.u.T @ v)
 
     def _esum(self, w: Array) -> Array:
-        """``sum_t e_t w_(t+l)`` at the lags (equal to ``sum_t w_t e_(t+l)`` in sum over both: the caller doubles)."""
+        """Half of ``sum_t e_t w_(t+l) + sum_t w_t e_(t+l)`` at the lags (the caller doubles it)."""
         tail = np.r_[np.cumsum(w[::-1])[::-1], 0.0]  # tail[l] = sum_(t >= l) w_t
         head = np.r_[0.0, np.cumsum(w)]  # head[k] = sum_(t < k) w_t
         return 0.5 * (tail[self.lags] + head[self.m - self.lags]) / math.sqrt(self.m)
