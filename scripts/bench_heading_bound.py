@@ -17,10 +17,11 @@ where the reference is the batch fit ``margcal calibrate`` makes (``study_real_r
 as that study does (``heading_p95_against``): every published calibration's bound against its heading
 difference to the batch fit.
 
-The bound is the status's (``model.heading.heading_p95_quantile`` of the fit's covariance, times
-``UNORDERED_SD_FACTOR`` for a full fit's unordered buffer, with the slow noise the offset absorbs for a partial
-fit); beside it, as the baseline of the same run, the old bound (``baseline``: ``heading_p95`` of the covariance as
-fitted), on the same published calibrations.
+The bound is the status's (``model.heading.heading_p95_quantile`` of the fit's covariance: for a full fit's
+unordered buffer, the white-noise covariance times ``UNORDERED_SD_FACTOR`` or the delete-a-region jackknife's,
+whichever is wider; with the slow noise the offset absorbs for a partial fit); beside it, as the baseline of the
+same run, the old bound (``baseline``: ``heading_p95`` of the covariance as fitted), on the same published
+calibrations.
 
 Run: ``python scripts/bench_heading_bound.py [--quick] [--group tuning|held-out|both] [--real]``
 (``--quick``: two seeds a case, the tumble and both ground robots: under two minutes).
@@ -41,7 +42,8 @@ from study_real_recordings import DATA, UNITS, batch_stretches, heading_p95_agai
 
 from ros_margcal.model.calibration import Calibration
 from ros_margcal.model.fitting_prior import NAMES as SYM_NAMES
-from ros_margcal.model.heading import UNORDERED_SD_FACTOR, heading_p95, inflated
+from ros_margcal.model.fitting_prior import broad_prior, posterior_at
+from ros_margcal.model.heading import heading_p95
 from ros_margcal.recordings.read import read_recording
 from ros_margcal.stream.calibrator import EventKind, PipelineConfig, SensorCalibrator
 
@@ -81,17 +83,18 @@ def _figure(st: Any, name: str) -> float:
 
 def baseline(cal: SensorCalibrator, published_cal: Calibration) -> tuple[float, float]:
     """The old bound (level, 30 deg) of the calibration just published, the baseline of this run: ``heading_p95``
-    (1.96 sd at the attitudes' 95th percentile) of the fit's own covariance, without the factor on a full fit's
-    unordered buffer (``UNORDERED_SD_FACTOR``, taken back out of the status's figures) and without the offset's slow
-    noise of a partial fit (its published calibration carries the covariance as fitted). Reads the calibrator's
-    private figures: a benchmark's look inside, not an API."""
+    (1.96 sd at the attitudes' 95th percentile) of the fit's own covariance: a full fit's white-noise covariance on
+    the buffer (``posterior_at``, without ``UNORDERED_SD_FACTOR`` and the jackknife), a partial fit's as fitted
+    (without the offset's slow noise). Reads the calibrator's private figures: a benchmark's look inside, not an
+    API."""
     figs = getattr(cal, "_figures", None)
     if figs is None or figs.calibration is None:
         return math.nan, math.nan
     if published_cal.covariance is not None and tuple(published_cal.parameter_names) == SYM_NAMES:
         cov_cal = published_cal
-    else:
-        cov_cal = inflated(figs.calibration, 1.0 / UNORDERED_SD_FACTOR)
+    else:  # a full fit: the white-noise covariance on the buffer it was fitted on (as the status's, before its factor)
+        pts = cal.buffer.points()
+        cov_cal = posterior_at(pts, figs.calibration, broad_prior(pts, figs.calibration.norm))
     inc = figs.inclination_deg
     return (heading_p95(cov_cal, tilt_deg=0.0, inclination=inc), heading_p95(cov_cal, tilt_deg=30.0, inclination=inc))
 

@@ -90,6 +90,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -103,8 +104,8 @@ from .fitting_gyro import GYRO_BIAS_STD, GYRO_SCALE_STD, MIN_EXPLAINED, GyroBloc
 from .fitting_level import LevelTerm
 from .fitting_noise import Whitener, noise_model, whitener
 
-__all__ = ["BROAD_MATRIX_STD", "BROAD_OFFSET_STD", "UPDATED_VARIANCE_RATIO", "PriorFit", "broad_prior", "fit_with_prior",
-           "posterior_at"]
+__all__ = ["BROAD_MATRIX_STD", "BROAD_OFFSET_STD", "UPDATED_VARIANCE_RATIO", "Linearised", "PriorFit", "broad_prior",
+           "fit_with_prior", "linearised_at", "posterior_at"]
 
 Array = NDArray[np.float64]
 
@@ -523,6 +524,39 @@ def _cost(z: Array, theta: Array, theta0: Array, chol: Array, n: float, s: float
     return float(r @ r + dp @ dp)
 
 
+class Linearised(NamedTuple):
+    """The MAP problem linearised at a calibration (``linearised_at``)."""
+
+    r: Array
+    """Geometric residuals (N,), raw units."""
+    jt: Array
+    """Their transposed Jacobian (9, N)."""
+    sigma: float
+    """The noise: the residuals' MAD unless given."""
+    info0: Array
+    """The prior's information ``P_0^-1`` (9, 9)."""
+    prior_step: Array
+    """``theta - theta_0`` (9,): the prior's share of the gradient is ``info0 @ prior_step``."""
+
+
+def linearised_at(points: ArrayLike, cal: Calibration, prior: Calibration, *, sigma: float | None = None) -> Linearised:
+    """The MAP problem linearised at ``cal`` (its symmetric part, at its norm): what ``posterior_at`` and
+    ``fitting_jackknife`` build on.
+
+    Raises:
+        InputError: bad points or prior; DegenerateDataError: fewer than 3 points.
+    """
+    pts = as_points(points, "points")
+    if len(pts) < 3:
+        msg = f"need at least 3 points, got {len(pts)}"
+        raise DegenerateDataError(msg)
+    theta0, info0 = _prior_parts(prior, 1.0)
+    theta = pack(np.asarray(cal.offset, dtype=np.float64), np.asarray(cal.matrix, dtype=np.float64), "sym")
+    r, jt = geometric(np.ascontiguousarray(pts.T), theta, float(cal.norm))
+    s = sigma if sigma is not None else max(mad_sigma(r), _MIN_SIGMA_REL * prior.raw_radius)
+    return Linearised(r, jt, float(s), info0, theta - theta0)
+
+
 def posterior_at(points: ArrayLike, cal: Calibration, prior: Calibration, *, sigma: float | None = None) -> Calibration:
     """``cal`` with the posterior covariance of the MAP problem linearised at ``cal`` (its symmetric part, at
     its norm): ``P = (J^T J / sigma^2 + P_0^-1)^-1`` from one Jacobian, no iteration. For a calibration
@@ -532,13 +566,6 @@ def posterior_at(points: ArrayLike, cal: Calibration, prior: Calibration, *, sig
     Raises:
         InputError: bad points or prior; DegenerateDataError: fewer than 3 points.
     """
-    pts = as_points(points, "points")
-    if len(pts) < 3:
-        msg = f"need at least 3 points, got {len(pts)}"
-        raise DegenerateDataError(msg)
-    _, info0 = _prior_parts(prior, 1.0)
-    theta = pack(np.asarray(cal.offset, dtype=np.float64), np.asarray(cal.matrix, dtype=np.float64), "sym")
-    r, jt = geometric(np.ascontiguousarray(pts.T), theta, float(cal.norm))
-    s = sigma if sigma is not None else max(mad_sigma(r), _MIN_SIGMA_REL * prior.raw_radius)
-    post = np.linalg.inv(jt @ jt.T / (s * s) + info0)
+    lin = linearised_at(points, cal, prior, sigma=sigma)
+    post = np.linalg.inv(lin.jt @ lin.jt.T / (lin.sigma * lin.sigma) + lin.info0)
     return cal.replace(covariance=0.5 * (post + post.T), parameter_names=NAMES)

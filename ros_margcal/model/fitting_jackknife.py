@@ -1,0 +1,97 @@
+"""How far a fit to samples without time order moves when a region of directions is left out: its jackknife covariance.
+
+A fit's own covariance (``fitting_prior.posterior_at``) holds when the model is right and the noise white. A young
+fit on a real sensor is off by more: what the ellipsoid does not model (a shape of its own, a slow drift) is shared
+by neighbouring directions, and a fit to part of the sphere carries it into the directions not yet seen. On the
+real recordings of ``scripts/bench_heading_bound.py`` the first full fit of an LSM9DS1 after 19 s was 7.9 deg from
+the batch fit of the whole recording, where its covariance (with ``heading.UNORDERED_SD_FACTOR``) bounded 5.3 deg.
+The delete-a-group jackknife (Efron and Stein 1981; Shao and Tu 1995, ch. 2) measures that spread from the data
+themselves, without a model of either.
+
+**Regions.** The calibrated directions ``u = W (v - b) / |W (v - b)|`` are split among the 12 Voronoi cells of the
+icosahedron's vertices (about 63 deg across, ``REGIONS``): a region is what a fit extrapolates over when it has not
+seen it.
+
+**One Newton step.** Leaving region ``k`` out of the problem linearised at the fit (``fitting_prior.linearised_at``:
+information ``H = J^T J / s^2 + P_0^-1``, gradient ``g = J^T r / s^2 + P_0^-1 (theta - theta_0)``) moves the
+estimate by ``d_k = -(H - H_k)^-1 (g - g_k)``, ``H_k`` and ``g_k`` the region's shares: no refit (12 solves of 9 x 9).
+The covariance is ``(G - 1) / G * sum_k (d_k - mean d)(d_k - mean d)^T`` over the ``G`` regions holding samples.
+A region whose removal leaves a parameter to the prior can move it as far as the prior allows: a bound that is
+large because the data are thin, which is the point.
+
+**Degrees of freedom.** That covariance is an estimate with ``G - 1`` degrees of freedom. A 95 % bound drawn from
+it as from a known normal covariance (``heading.heading_p95_quantile``) is too small by the ratio of the F to the
+chi-square quantile; ``t_factor`` is that ratio in standard deviations for a two-dimensional error (the heading
+bound's two error directions, ``heading`` module docstring): ``sqrt(nu ((1 - p)^(-2/nu) - 1) / (-2 ln(1 - p)))``,
+1.15 for ``nu = 11``, exact for ``F(2, nu)`` (its distribution function is ``1 - (1 + 2 x / nu)^(-nu/2)``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .calibration import Calibration
+from .errors import DegenerateDataError, InputError, as_points
+from .fitting_prior import NAMES, linearised_at
+
+__all__ = ["MIN_REGIONS", "REGIONS", "jackknife_at", "t_factor"]
+
+Array = NDArray[np.float64]
+
+_PHI = (1.0 + math.sqrt(5.0)) / 2.0
+REGIONS: Array = np.array([[0, 1, _PHI], [0, -1, _PHI], [0, 1, -_PHI], [0, -1, -_PHI], [1, _PHI, 0], [-1, _PHI, 0],
+                           [1, -_PHI, 0], [-1, -_PHI, 0], [_PHI, 0, 1], [-_PHI, 0, 1], [_PHI, 0, -1], [-_PHI, 0, -1]],
+                          dtype=np.float64) / math.sqrt(1.0 + _PHI * _PHI)
+"""The icosahedron's 12 vertices (unit vectors): the centres of the regions left out in turn."""
+MIN_REGIONS = 3
+"""Fewer regions holding samples give no spread worth the name (``DegenerateDataError``)."""
+
+
+def t_factor(dof: int, p: float = 0.95) -> float:
+    """Standard-deviation factor of a ``p`` bound of a two-dimensional error whose covariance was estimated with
+    ``dof`` degrees of freedom, against one from a known covariance (module docstring); 1 as ``dof`` grows.
+
+    Raises:
+        InputError: ``dof`` below 1 or ``p`` not in (0, 1).
+    """
+    if not (isinstance(dof, int | np.integer) and dof >= 1) or not 0.0 < p < 1.0:
+        msg = f"t_factor needs dof >= 1 and 0 < p < 1, got dof={dof!r}, p={p!r}"
+        raise InputError(msg)
+    tail = -math.log1p(-p)  # -ln(1 - p)
+    return math.sqrt(dof * math.expm1(2.0 * tail / dof) / (2.0 * tail))
+
+
+def jackknife_at(points: ArrayLike, cal: Calibration, prior: Calibration) -> tuple[Calibration, int]:
+    """``cal`` with the delete-a-region jackknife covariance of the MAP problem linearised at it (module docstring),
+    and its degrees of freedom (regions holding samples, minus one).
+
+    Raises:
+        InputError: bad points or prior; DegenerateDataError: fewer than ``MIN_REGIONS`` regions hold samples.
+    """
+    pts = as_points(points, "points")
+    lin = linearised_at(pts, cal, prior)
+    s2 = lin.sigma * lin.sigma
+    w, b = np.asarray(cal.matrix, dtype=np.float64), np.asarray(cal.offset, dtype=np.float64)
+    region = np.argmax((pts - b) @ w.T @ REGIONS.T, axis=1)  # the nearest vertex (the length does not change it)
+    score = lin.jt * (lin.r / s2)  # each sample's share of the gradient (9, N)
+    info = lin.jt @ lin.jt.T / s2 + lin.info0
+    grad = score.sum(axis=1) + lin.info0 @ lin.prior_step
+    steps = []
+    for k in np.unique(region):
+        mine = region == k
+        jk = lin.jt[:, mine]
+        try:
+            steps.append(-np.linalg.solve(info - jk @ jk.T / s2, grad - score[:, mine].sum(axis=1)))
+        except np.linalg.LinAlgError:  # the prior keeps it invertible; a prior that does not: no spread from it
+            continue
+    if len(steps) < MIN_REGIONS:
+        msg = f"the samples fill {len(steps)} of the {len(REGIONS)} direction regions, the jackknife needs {MIN_REGIONS}"
+        raise DegenerateDataError(msg)
+    d = np.array(steps)
+    d -= d.mean(axis=0)
+    g = len(steps)
+    cov = (g - 1) / g * (d.T @ d)
+    return cal.replace(covariance=0.5 * (cov + cov.T), parameter_names=NAMES), g - 1
