@@ -201,26 +201,27 @@ def _checked_plan(path: Path, sensor: str | None, unit: str | None,
 
 
 def _options(sets: dict[str, dict[str, Any]], plan: dict[str, tuple[str, str]], full_only: bool,
-             position: dict[str, Any]) -> dict[str, Any]:
-    """The calibrators' options from ``--set`` (and ``--full-only``, the ``position``), checked for every sensor
-    replayed; options for one sensor only need a recording (or ``--sensor``) that replays that sensor alone."""
+             position: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """Each replayed sensor's calibrator options from ``--set`` (those without a prefix for both, ``mag.KEY`` and
+    ``accel.KEY`` for that sensor alone), ``--full-only`` and the ``position``, checked now (a ``ConfigError`` before
+    the replay starts, not after)."""
     sensors = sorted({s for s, _ in plan.values()})
-    own = [s for s in ("mag", "accel") if sets.get(s)]
-    if own and len(sensors) > 1:
-        msg = (f"--set {own[0]}.KEY on a recording of both sensors: replay one with --sensor {own[0]}, or set the "
-               "option for both without the prefix")
+    unused = [s for s in ("mag", "accel") if sets.get(s) and s not in sensors]
+    if unused:
+        msg = f"--set {unused[0]}.KEY: the recording replays no {unused[0]} ({', '.join(sensors) or 'nothing'})"
         raise ConfigError(msg)
-    options = sensor_options(sets, sensors[0]) if sensors else dict(sets.get("", {}))
-    if full_only:
-        options["partial_fit"] = False
-    options.update(position)
-    if position and "field_year" not in options:  # one date for the whole replay (and for the line printed)
-        options["field_year"] = decimal_year()
+    extra: dict[str, Any] = {"partial_fit": False} if full_only else {}
+    extra.update(position)
+    year = decimal_year() if position else None  # one date for the whole replay (and for the line printed)
+    out = {s: {**sensor_options(sets, s), **extra} for s in sensors}
+    for opts in out.values():
+        if year is not None:
+            opts.setdefault("field_year", year)
     for s, u in plan.values():
-        cfg = PipelineConfig.for_sensor(s, u, **options)  # ConfigError now, not after the replay started
+        cfg = PipelineConfig.for_sensor(s, u, **out[s])
         if position and s == "mag":
-            print(f"{s}: {field_line(cfg, norm_given='reference_norm' in options)}")
-    return options
+            print(f"{s}: {field_line(cfg, norm_given='reference_norm' in out[s])}")
+    return out
 
 
 def run(args: argparse.Namespace) -> int:
@@ -244,7 +245,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"replaying {path}" + (f" with the validator {args.validator}" if validator is not None else ""))
     printer = None if args.quiet else print
     result = replay(path, sensor=sensor, unit=unit, status_every=args.status_every, on_line=printer,
-                    validator=validator, options=options or None, topics=args.topic)
+                    validator=validator, topics=args.topic, sensor_options=options)
     cals: dict[str, SensorCalibrator] = result["calibrators"]
     topics: dict[str, str] = result.get("topics", {})
     truth = load_calibrations(truth_path) if truth_path is not None else {}
@@ -259,7 +260,7 @@ def run(args: argparse.Namespace) -> int:
         if topics.get(s):
             entry["topic"] = topics[s]
         if c.config.sensor == "mag" and c.config.field_model() is not None:
-            entry["field_model"] = field_line(c.config, norm_given="reference_norm" in options)
+            entry["field_model"] = field_line(c.config, norm_given="reference_norm" in options.get("mag", {}))
             print(f"    {entry['field_model']}")
         if c.calibration is not None:
             print(_format_cal(c.calibration))

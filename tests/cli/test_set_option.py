@@ -9,12 +9,14 @@ import numpy as np
 import pytest
 
 from ros_margcal.cli import main
+from ros_margcal.cli.replay import example_paths
 from ros_margcal.cli.set_option import parse_sets, sensor_options
 from ros_margcal.model.errors import ConfigError
 from ros_margcal.recordings import write_csv
 from ros_margcal.recordings.recording import Recording
 from ros_margcal.sim.simulation import directions, random_sensor, simulate
 from ros_margcal.stream.config import FIELD_SPECS, PipelineConfig
+from ros_margcal.stream.replay import replay
 
 SEED = 25
 
@@ -90,3 +92,24 @@ def test_a_bad_set_exits_2_on_one_line(tmp_path: Path, capsys: pytest.CaptureFix
         err = capsys.readouterr().err
         lines = [ln for ln in err.splitlines() if ln.startswith("margcal ")]
         assert len(lines) == 1 and match in lines[0] and "Traceback" not in err, err
+
+
+def test_replay_sets_one_sensors_option_on_a_recording_of_both(capsys: pytest.CaptureFixture[str]) -> None:
+    """``--set accel.KEY`` on the example bag (both sensors) sets the accelerometer's calibrator alone, ``--set KEY``
+    both; the replay runs (it was refused with "replay one with --sensor")."""
+    path, _ = example_paths()
+    opts = {"accel": {"gate_cv_threshold": 0.02, "n_bins": 24}, "mag": {"n_bins": 24}}
+    cals = replay(path, progress=False, status_every=0.0, sensor_options=opts)["calibrators"]
+    assert cals["accel"].config.gate_cv_threshold == 0.02 and cals["accel"].config.n_bins == 24
+    default = PipelineConfig.for_sensor("mag")
+    assert cals["mag"].config.gate_cv_threshold == default.gate_cv_threshold and cals["mag"].config.n_bins == 24
+    assert main(["replay", "--example", "--quiet", "--set", "accel.gate_cv_threshold=0.02", "--set", "n_bins=24"]) == 0
+    capsys.readouterr()
+
+
+def test_replay_refuses_an_option_for_a_sensor_it_does_not_replay(tmp_path: Path,
+                                                                   capsys: pytest.CaptureFixture[str]) -> None:
+    path = _poses(tmp_path, noise=0.01)
+    assert main(["replay", str(path), "--unit", "m/s^2", "--set", "mag.n_bins=24"]) == 2
+    err = capsys.readouterr().err
+    assert "replays no mag" in err and "Traceback" not in err, err
