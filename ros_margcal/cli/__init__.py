@@ -27,6 +27,22 @@ def _run_bench(args: argparse.Namespace) -> int:
 
 
 
+_PASSTHROUGH = {"bench": 2, "diagnose-benchmark": 1}
+"""Commands whose remaining words go to a benchmark's own parser, and how many words (with the command) are theirs."""
+
+
+def _passthrough(words: list[str]) -> tuple[list[str], list[str] | None]:
+    """The words ``margcal`` parses and those a benchmark command passes on unparsed (None: not such a command):
+    an argparse REMAINDER takes nothing when its first word is an option (``diagnose-benchmark --quick``)."""
+    for i, word in enumerate(words):
+        if not word.startswith("-"):
+            n = _PASSTHROUGH.get(word)
+            if n is None or "-h" in words[i + 1 : i + n] or "--help" in words[i + 1 : i + n]:
+                return words, None
+            return words[: i + n], words[i + n :]
+    return words, None
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser with every subcommand registered."""
 
@@ -53,7 +69,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     Bad input (any MargCalError) and a file the system refuses (OSError: a full disk, no permission)
     are reported on one line, never as a traceback; a traceback is left for bugs.
     """
-    args = build_parser().parse_args(argv)
+    words = list(sys.argv[1:] if argv is None else argv)
+    own, passed = _passthrough(words)
+    args = build_parser().parse_args(own)
+    if passed is not None:
+        args.bench_args = passed
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     try:
         return int(args.func(args))
