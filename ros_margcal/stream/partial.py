@@ -166,11 +166,16 @@ class PartialCalibration:
         cfg = self.config
         if self._cal is not None and not self._changed and self._partial is None:
             every, interval = cfg.refit_every, cfg.recheck_interval_s
-        elif (self._cal is None or self._early_current) and self._early_close and cfg.early_fit and cfg.partial_fit:
+        elif self._early_due() and self._early_close and cfg.early_fit and cfg.partial_fit:
             every, interval = max(1, cfg.refit_every // 2), min(cfg.refit_min_interval_s, cfg.early_interval_s)
         else:
             every, interval = cfg.refit_every, cfg.refit_min_interval_s
         return every, max(0.0, interval - 1e-6)
+
+    def _early_due(self) -> bool:
+        """Early fits (rich motion) run: uncalibrated, or refining an early calibration (not across a sensor change:
+        the recent samples would straddle it)."""
+        return self._cal is None or (self._early_current and not self._changed)
 
     def _partial_noise(self, job: dict[str, Any]) -> None:
         """Remember the noise of a series fit's residuals and its solution for the next series fit: a solution
@@ -281,7 +286,7 @@ class PartialCalibration:
     def _partial_wanted(self) -> bool:
         """The full validator refused: is a partial fit worth a try now (module docstring)?"""
         cfg = self.config
-        early = cfg.early_fit and (self._cal is None or self._early_current) and len(self._recent_v) >= cfg.min_points
+        early = cfg.early_fit and self._early_due() and len(self._recent_v) >= cfg.min_points
         if not cfg.partial_fit or (len(self._series) < cfg.min_points and not early):
             return False
         if not (self._cal is None or self._changed or self._partial is not None):
