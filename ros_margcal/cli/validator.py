@@ -97,6 +97,7 @@ def evaluate(corpus: Corpus, *, max_error: float = DEFAULT_MAX_ERROR, max_fpr: f
                          "auc": roc_auc(score_te, pos_te), "spearman": _spearman(-score_te, groups[te].error)})
         keys = ("train_auc", "auc_point", "auc", "spearman")
         out["single"][name] = {"runs": rows, **{k: _ms([r[k] for r in rows]) for k in keys}}
+    live = sys.stderr.isatty()
     for k, inputs in enumerate(pairs):
         t0 = time.monotonic()
         rows = []
@@ -116,9 +117,10 @@ def evaluate(corpus: Corpus, *, max_error: float = DEFAULT_MAX_ERROR, max_fpr: f
         key = "&".join(inputs)
         out["fuzzy"][key] = {"inputs": list(inputs), "runs": rows,
                              **{k2: _ms([r[k2] for r in rows]) for k2 in ("auc", "auc_point", "ill_accepted", "spearman")}}
-        if progress:
-            print(f"\rfuzzy {k + 1}/{len(pairs)} ({key}, {time.monotonic() - t0:.1f} s)   ", end="", file=sys.stderr, flush=True)
-    if progress:
+        if progress:  # in place on a terminal, a line each in a log
+            text = f"fuzzy {k + 1}/{len(pairs)} ({key}, {time.monotonic() - t0:.1f} s)"
+            print(f"\r{text}   " if live else text, end="" if live else "\n", file=sys.stderr, flush=True)
+    if progress and live:
         print(file=sys.stderr)
     for name, b in BASELINES.items():
         rows = []

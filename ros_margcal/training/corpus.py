@@ -376,7 +376,7 @@ def build_corpus(n_sets: int, seed: int = 0, *, progress: bool | TextIO = False,
     Args:
         n_sets: number of sets (>= 2, so both groups of the swap are populated).
         seed: corpus seed.
-        progress: True (stderr) or a stream to show a ``\\r`` counter on.
+        progress: True (stderr) or a stream to show a counter on (in place on a terminal, else a line a quarter).
         **options: passed on to ``make_set`` (n_min, n_max, noise_range, n_test, model, method, effects,
             duration_s, recording, kind).
     """
@@ -384,13 +384,17 @@ def build_corpus(n_sets: int, seed: int = 0, *, progress: bool | TextIO = False,
         msg = f"n_sets must be >= 2, got {n_sets}"
         raise ConfigError(msg)
     stream = sys.stderr if progress is True else (progress or None)
+    # a counter in place on a terminal; a log (no terminal) gets a line a quarter
+    live = stream is not None and bool(getattr(stream, "isatty", lambda: False)())
+    quarters = {max(1, round(k * n_sets / 4)) for k in (1, 2, 3, 4)}
     rows = []
     t0 = time.monotonic()
     for i in range(n_sets):
         rows.append(make_set(seed, i, **options))
-        if stream is not None and (i + 1 == n_sets or (i + 1) % 25 == 0):
-            print(f"\rcorpus: {i + 1}/{n_sets} sets, {time.monotonic() - t0:.0f} s", end="", file=stream, flush=True)
-    if stream is not None:
+        if stream is not None and (i + 1 == n_sets or ((i + 1) % 25 == 0 if live else i + 1 in quarters)):
+            text = f"corpus: {i + 1}/{n_sets} sets, {time.monotonic() - t0:.0f} s"
+            print(f"\r{text}" if live else text, end="" if live else "\n", file=stream, flush=True)
+    if live:
         print(file=stream)
     n_failed = sum(r["fit"] is None for r in rows)
     meta = {"seed": seed, "n_sets": n_sets, "n_failed": n_failed, **options}

@@ -111,11 +111,21 @@ def test_save_load_round_trip(small_corpus: Corpus, tmp_path: Path) -> None:
         Corpus.load(bad)
 
 
+class _Terminal(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
 def test_progress_and_size_check() -> None:
-    """Progress goes to the given stream as a carriage-return counter; tiny corpora are refused."""
-    stream = io.StringIO()
+    """Progress goes to the given stream: a carriage-return counter on a terminal, a line a quarter elsewhere (a log
+    file reads line by line); tiny corpora are refused."""
+    stream = _Terminal()
     build_corpus(4, seed=1, progress=stream)
     assert "\rcorpus: 4/4 sets" in stream.getvalue()
+    log = io.StringIO()
+    build_corpus(8, seed=1, progress=log)
+    lines = log.getvalue().splitlines()
+    assert "\r" not in log.getvalue() and [ln.split(",")[0] for ln in lines] == [f"corpus: {k}/8 sets" for k in (2, 4, 6, 8)]
     with pytest.raises(ConfigError, match="n_sets"):
         build_corpus(1)
 
