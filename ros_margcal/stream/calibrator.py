@@ -216,7 +216,6 @@ class SensorCalibrator(ChangeDetection, Evaluation):
 
     def _install(self, cal: Calibration) -> None:
         self._cal = cal
-        self._early_current = False  # (an early fit's job sets it again: _partial_installed)
         w, b = cal.matrix, cal.offset
         self._w = (*w.reshape(-1).tolist(), *b.tolist(), cal.norm)
         self._intake.expected = math.sqrt(float(b @ b) + cal.raw_radius**2)  # the raw field's RMS norm: learnt limits hold it

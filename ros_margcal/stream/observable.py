@@ -49,10 +49,8 @@ assumption off for such a mount, and a gyro in the magnetometer's frame makes it
 
 **Early fit on rich motion** (``early_fit``). Before the first calibration, the same MAP fit on richer
 data (a tumble's first seconds, on the recent samples while the series is short) is
-published when its predicted heading p95 at ±30° tilt is at most ``max_heading_p95_deg`` (2.5°, every partial
-calibration's standard), and refined by early fits until that figure is at most ``early_heading_p95_deg`` (1°,
-``partial.py``): the covariance says when the data suffice, instead of the validator's coverage rule and a fixed
-cadence.
+published when its predicted heading p95 at ±30° tilt is at most ``early_heading_p95_deg`` (1°): the
+covariance says when the data suffice, instead of the validator's coverage rule and a fixed cadence.
 The full path then runs as before; its fits replace the early one without the not-worse check against
 it (``partial.PartialCalibration``), so the later calibrations are the full path's.
 A refit replaces a partial
@@ -412,7 +410,7 @@ def partial_fit(series: Array, prior: Calibration | None, cfg: PipelineConfig, *
         seen = figs.tilt30_deg if rich else heading_p95_quantile(bounded, tilt_deg=tilt, inclination=inc)
     except (MargCalError, ValueError, ArithmeticError) as exc:
         return PartialResult(None, (), SYM_NAMES, kind, math.nan, math.inf, None, f"partial fit failed: {exc}")
-    limit = cfg.max_heading_p95_deg  # rich (an early fit) or a ring: one standard for a partial calibration
+    limit = cfg.early_heading_p95_deg if rich else cfg.max_heading_p95_deg
     reason, over = "", None
     if not seen <= limit:
         where = "at 30 deg tilt" if rich else f"at the tilt seen ({tilt:.1f} deg)"

@@ -12,10 +12,8 @@ estimate and the decision live in ``observable`` (see its docstring). Here:
   accounted for, and that it was not used when too little (the gyro and magnetometer not in one frame);
 - the prior: the last *full* calibration accepted or loaded (with a covariance over the symmetric
   parameters; a full fit gets one from ``observable.heading_figures``), else the broad prior;
-- the early fit on rich motion (``observable``): before the first calibration, and while the installed one is an
-  early fit's whose predicted 30 deg p95 is above ``early_heading_p95_deg`` (refinement: each early refit replaces it
-  only with a lower figure), on the recent samples (``recent_samples``, all of them while uncalibrated) while the
-  series is shorter than ``min_points``;
+- the early fit on rich motion (``observable``): before the first calibration, on the recent samples
+  (``recent_samples``, all of them while uncalibrated) while the series is shorter than ``min_points``;
 - when a partial fit is due: the full validator refused, ``partial_fit`` is on, there is no
   calibration, a sensor change is pending, or the current one is partial; and the series grew since
   the last attempt by a quarter (``PARTIAL_GROWTH``), or by what that attempt's refusal asks for (up to
@@ -140,7 +138,6 @@ class PartialCalibration:
         self._figures: HeadingFigures | None = None
         self._prior: Calibration | None = None
         self._early_close = False  # the last early fit's predicted heading error was within EARLY_CLOSE x its limit
-        self._early_current = False  # the installed calibration is an early fit's (early fits go on refining it)
         self._partial_growth = self.PARTIAL_GROWTH  # share of the series to wait for before the next partial fit
         self._early_sigma: float | None = None  # the residual noise of the last early fit
         self._partial_sigma: float | None = None  # the residual noise of the last fit on the series ...
@@ -166,16 +163,11 @@ class PartialCalibration:
         cfg = self.config
         if self._cal is not None and not self._changed and self._partial is None:
             every, interval = cfg.refit_every, cfg.recheck_interval_s
-        elif self._early_due() and self._early_close and cfg.early_fit and cfg.partial_fit:
+        elif self._cal is None and self._early_close and cfg.early_fit and cfg.partial_fit:
             every, interval = max(1, cfg.refit_every // 2), min(cfg.refit_min_interval_s, cfg.early_interval_s)
         else:
             every, interval = cfg.refit_every, cfg.refit_min_interval_s
         return every, max(0.0, interval - 1e-6)
-
-    def _early_due(self) -> bool:
-        """Early fits (rich motion) run: uncalibrated, or refining an early calibration (not across a sensor change:
-        the recent samples would straddle it)."""
-        return self._cal is None or (self._early_current and not self._changed)
 
     def _partial_noise(self, job: dict[str, Any]) -> None:
         """Remember the noise of a series fit's residuals and its solution for the next series fit: a solution
@@ -201,7 +193,8 @@ class PartialCalibration:
         self._az_watch = None
         res: PartialResult | None = job.get("result")
         cfg = self.config
-        self._early_close = res is not None and res.heading_seen_deg <= self.EARLY_CLOSE * cfg.max_heading_p95_deg
+        limit = max(cfg.early_heading_p95_deg, cfg.max_heading_p95_deg)
+        self._early_close = res is not None and res.heading_seen_deg <= self.EARLY_CLOSE * limit
         grow = self.PARTIAL_GROWTH  # also for an early fit's heading refusal: a tumble's figure falls fast
         if res is not None and res.over_limit and not job.get("early") and math.isfinite(res.heading_seen_deg):
             grow = res.heading_seen_deg / res.over_limit - 1.0
@@ -286,7 +279,7 @@ class PartialCalibration:
     def _partial_wanted(self) -> bool:
         """The full validator refused: is a partial fit worth a try now (module docstring)?"""
         cfg = self.config
-        early = cfg.early_fit and self._early_due() and len(self._recent_v) >= cfg.min_points
+        early = cfg.early_fit and self._cal is None and len(self._recent_v) >= cfg.min_points
         if not cfg.partial_fit or (len(self._series) < cfg.min_points and not early):
             return False
         if not (self._cal is None or self._changed or self._partial is not None):
@@ -324,7 +317,7 @@ class PartialCalibration:
             current = None if current is None else turned(current, q)
             recent = np.asarray(recent, dtype=np.float64) @ q.T
         res = partial_fit(job["series"], prior, job["config"], spread=job["spread"], recent=recent, gyro=gyro,
-                          current=None if job["early"] else current,
+                          current=current,
                           stamp=job["t"], sensor=self.sensor, current_heading=job["current_heading"], sigma=job["sigma"],
                           max_iter=self.EARLY_MAX_ITER if job["early"] else job["config"].max_iter, start=job["start"],
                           sigma_tolerance=math.inf if job["early"] else SIGMA_REUSE_TOLERANCE,
@@ -419,8 +412,6 @@ class PartialCalibration:
         if job.get("partial"):
             self._partial_noise(job)
             res: PartialResult = job["result"]
-            # an early calibration is refined by early fits until its predicted 30 deg p95 reaches the early target
-            self._early_current = bool(job.get("early")) and not res.heading_seen_deg <= self.config.early_heading_p95_deg
             self._partial, self._partial_note = res, ""
             self._partial_growth = self.REFIT_GROWTH  # a refit once the series grew by this share (module docstring)
             self._figures = res.figures
