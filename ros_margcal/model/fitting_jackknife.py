@@ -37,7 +37,7 @@ from .calibration import Calibration
 from .errors import DegenerateDataError, InputError, as_points
 from .fitting_prior import NAMES, linearised_at
 
-__all__ = ["MIN_REGIONS", "REGIONS", "jackknife_at", "t_factor"]
+__all__ = ["MIN_REGIONS", "REGIONS", "grouped_jackknife", "jackknife_at", "t_factor"]
 
 Array = NDArray[np.float64]
 
@@ -64,6 +64,39 @@ def t_factor(dof: int, p: float = 0.95) -> float:
     return math.sqrt(dof * math.expm1(2.0 * tail / dof) / (2.0 * tail))
 
 
+def grouped_jackknife(jt: Array, r: Array, sigma: float, info: Array, prior_grad: Array,
+                      groups: Array) -> tuple[Array, int]:
+    """The delete-a-group jackknife covariance of an estimate from the least squares linearised at it (module
+    docstring: one Newton step per group left out), and its degrees of freedom (groups used, minus one).
+
+    ``jt`` (P, N) and ``r`` (N,): the residuals' transposed Jacobian and the residuals, of noise ``sigma``; ``info``
+    (P, P): the whole problem's information (data and priors); ``prior_grad`` (P,): the priors' share of the
+    gradient; ``groups`` (N,): each residual's group. A group whose removal leaves a singular problem is skipped.
+
+    Raises:
+        DegenerateDataError: fewer than two groups could be left out.
+    """
+    s2 = sigma * sigma
+    score = jt * (r / s2)  # each residual's share of the gradient (P, N)
+    grad = score.sum(axis=1) + prior_grad
+    steps = []
+    for k in np.unique(groups):
+        mine = groups == k
+        jk = jt[:, mine]
+        try:
+            steps.append(-np.linalg.solve(info - jk @ jk.T / s2, grad - score[:, mine].sum(axis=1)))
+        except np.linalg.LinAlgError:
+            continue
+    if len(steps) < 2:
+        msg = f"{len(steps)} group(s) could be left out, the jackknife needs 2"
+        raise DegenerateDataError(msg)
+    d = np.array(steps)
+    d -= d.mean(axis=0)
+    g = len(steps)
+    cov = (g - 1) / g * (d.T @ d)
+    return 0.5 * (cov + cov.T), g - 1
+
+
 def jackknife_at(points: ArrayLike, cal: Calibration, prior: Calibration) -> tuple[Calibration, int]:
     """``cal`` with the delete-a-region jackknife covariance of the MAP problem linearised at it (module docstring),
     and its degrees of freedom (regions holding samples, minus one).
@@ -73,25 +106,12 @@ def jackknife_at(points: ArrayLike, cal: Calibration, prior: Calibration) -> tup
     """
     pts = as_points(points, "points")
     lin = linearised_at(pts, cal, prior)
-    s2 = lin.sigma * lin.sigma
     w, b = np.asarray(cal.matrix, dtype=np.float64), np.asarray(cal.offset, dtype=np.float64)
     region = np.argmax((pts - b) @ w.T @ REGIONS.T, axis=1)  # the nearest vertex (the length does not change it)
-    score = lin.jt * (lin.r / s2)  # each sample's share of the gradient (9, N)
-    info = lin.jt @ lin.jt.T / s2 + lin.info0
-    grad = score.sum(axis=1) + lin.info0 @ lin.prior_step
-    steps = []
-    for k in np.unique(region):
-        mine = region == k
-        jk = lin.jt[:, mine]
-        try:
-            steps.append(-np.linalg.solve(info - jk @ jk.T / s2, grad - score[:, mine].sum(axis=1)))
-        except np.linalg.LinAlgError:  # the prior keeps it invertible; a prior that does not: no spread from it
-            continue
-    if len(steps) < MIN_REGIONS:
-        msg = f"the samples fill {len(steps)} of the {len(REGIONS)} direction regions, the jackknife needs {MIN_REGIONS}"
+    if len(np.unique(region)) < MIN_REGIONS:
+        msg = (f"the samples fill {len(np.unique(region))} of the {len(REGIONS)} direction regions, the jackknife "
+               f"needs {MIN_REGIONS}")
         raise DegenerateDataError(msg)
-    d = np.array(steps)
-    d -= d.mean(axis=0)
-    g = len(steps)
-    cov = (g - 1) / g * (d.T @ d)
-    return cal.replace(covariance=0.5 * (cov + cov.T), parameter_names=NAMES), g - 1
+    info = lin.jt @ lin.jt.T / (lin.sigma * lin.sigma) + lin.info0
+    cov, dof = grouped_jackknife(lin.jt, lin.r, lin.sigma, info, lin.info0 @ lin.prior_step, region)
+    return cal.replace(covariance=cov, parameter_names=NAMES), dof

@@ -49,7 +49,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .calibration import Calibration
-from .errors import InputError
+from .errors import DegenerateDataError, InputError
 from .fitting_core import mad_sigma, pack, parameter_names, unpack
 from .fitting_gyro import (
     FRAME_BETTER,
@@ -65,6 +65,7 @@ from .fitting_gyro import (
     rotated_blocks,
     skew,
 )
+from .fitting_jackknife import grouped_jackknife
 
 __all__ = ["DECIDE_CHI2", "JACKKNIFE_CHUNKS", "MIN_BLOCKS", "MISALIGN_STD", "REFINE", "RIVAL", "ROTATIONS", "SINGLE_AXIS",
            "TIME_OFFSET_STD", "Mounting", "axis_angle", "find_mounting", "into_imu_frame", "rotation_name", "rotvec", "turned"]
@@ -354,21 +355,11 @@ def _turn_axis(blocks: GyroBlocks) -> str:
 
 def _jackknife(best: _Refined) -> Array:
     """The misalignment's delete-a-chunk jackknife covariance (3, 3): the blocks in ``JACKKNIFE_CHUNKS`` runs of time,
-    each left out in turn by one Newton step of the problem linearised at the estimate (``fitting_jackknife``'s step,
-    here over time: what the blocks share, a slow drift of the rates or of the field, is what the chunks tell apart)."""
-    s2 = best.sigma * best.sigma
-    score = best.jt * (best.res / s2)
-    grad = score.sum(axis=1) + best.prior_grad
+    each left out in turn (``fitting_jackknife.grouped_jackknife``, here over time: what the blocks share, a slow
+    drift of the rates or of the field, is what the chunks tell apart)."""
     n_blocks = len(best.res) // 3
     chunk = np.repeat(np.minimum(np.arange(n_blocks) * JACKKNIFE_CHUNKS // n_blocks, JACKKNIFE_CHUNKS - 1), 3)
-    steps = []
-    for k in range(JACKKNIFE_CHUNKS):
-        mine = chunk == k
-        jk = best.jt[:, mine]
-        steps.append(-np.linalg.solve(best.info - jk @ jk.T / s2, grad - score[:, mine].sum(axis=1))[:3])
-    d = np.array(steps)
-    d -= d.mean(axis=0)
-    return (JACKKNIFE_CHUNKS - 1) / JACKKNIFE_CHUNKS * (d.T @ d)
+    return grouped_jackknife(best.jt, best.res, best.sigma, best.info, best.prior_grad, chunk)[0][:3, :3]
 
 
 def _covariance(best: _Refined, blocks: GyroBlocks, b: Array, w: Array, cal_cov: Array | None) -> Array:
@@ -379,7 +370,7 @@ def _covariance(best: _Refined, blocks: GyroBlocks, b: Array, w: Array, cal_cov:
     cov = inv[:3, :3]
     try:
         jack = _jackknife(best)
-    except np.linalg.LinAlgError:  # the priors keep it invertible; should they not, the model's stands
+    except DegenerateDataError:  # the priors keep every chunk's problem regular; should they not, the model's stands
         jack = cov
     cov = jack if float(np.trace(jack)) > float(np.trace(cov)) else cov
     if cal_cov is not None:
