@@ -306,9 +306,21 @@ def _own_frame(cal: Calibration) -> Calibration:
     return cal.replace(matrix=vt.T @ np.diag(sv) @ vt, covariance=None, parameter_names=())
 
 
-def _wider(a: Calibration, b: Calibration, inc: float) -> Calibration:
+def _jackknifed(points: Array, cal: Calibration, prior: Calibration) -> Calibration | None:
+    """``cal`` with its jackknife covariance for a 95 % bound (``fitting_jackknife``: times ``t_factor``), None when
+    the samples fill too few regions for one."""
+    try:
+        jack, dof = jackknife_at(points, cal, prior)
+    except DegenerateDataError:
+        return None
+    return inflated(jack, t_factor(dof))
+
+
+def _wider(a: Calibration, b: Calibration | None, inc: float) -> Calibration:
     """Of two covariances of one calibration, the one that predicts the larger level heading error (the largest
-    first-order sd over yaw: cheap, and the bound's order)."""
+    first-order sd over yaw: cheap, and the bound's order); ``a`` when there is no ``b``."""
+    if b is None:
+        return a
     level = attitudes(0.0)
     sd_a = float(np.max(heading_std_deg(a, level, inclination=inc)))
     sd_b = float(np.max(heading_std_deg(b, level, inclination=inc)))
@@ -327,12 +339,8 @@ def heading_figures(cal: Calibration, points: Array, cfg: PipelineConfig) -> tup
             # small (model.heading: UNORDERED_SD_FACTOR, chosen on the bound benchmark's tuning seeds); what the
             # model misses the jackknife sees (model.fitting_jackknife): the wider of the two
             prior = broad_prior(points, cal.norm)
-            cov_cal = inflated(posterior_at(points, cal, prior), UNORDERED_SD_FACTOR)
-            try:
-                jack, dof = jackknife_at(points, cal, prior)
-                cov_cal = _wider(cov_cal, inflated(jack, t_factor(dof)), inc)
-            except DegenerateDataError:
-                pass
+            cov_cal = _wider(inflated(posterior_at(points, cal, prior), UNORDERED_SD_FACTOR), _jackknifed(points, cal, prior),
+                             inc)
         return _figures(cov_cal, inc), cov_cal
     except (MargCalError, ValueError, ArithmeticError):
         return None

@@ -137,8 +137,7 @@ def _paired(messages: Iterator[Any], names: dict[str, str]) -> Iterator[Sample]:
 
 def replay(path: Path, *, sensor: str | None = None, unit: str | None = None, status_every: float = 10.0,
            progress: bool = True, on_line: Any = None, validator: Any = None,
-           options: dict[str, Any] | None = None, topics: Iterable[str] | None = None,
-           sensor_options: dict[str, dict[str, Any]] | None = None) -> dict[str, Any]:
+           topics: Iterable[str] | None = None, sensor_options: dict[str, dict[str, Any]] | None = None) -> dict[str, Any]:
     """Run the pipeline over a recording; returns calibrators, timeline, counts and the topic of each calibrator.
 
     Args:
@@ -150,9 +149,9 @@ def replay(path: Path, *, sensor: str | None = None, unit: str | None = None, st
             logger's console handlers) are written above it, never into it.
         on_line: called with each timeline line (str) as it happens.
         validator: the validator every calibrator uses (None: the shipped default).
-        options: ``PipelineConfig`` options for every calibrator (e.g. ``{"partial_fit": False}``).
         topics: a bag's topics to replay (default: every Imu and MagneticField topic).
-        sensor_options: per sensor (``mag``, ``accel``), options over ``options`` for that sensor's calibrators.
+        sensor_options: ``PipelineConfig`` options per sensor (``mag``, ``accel``) for that sensor's calibrators (e.g.
+            ``{"mag": {"partial_fit": False}}``).
 
     Returns:
         ``calibrators`` (name -> SensorCalibrator: ``mag``, ``accel``, or ``mag:<topic>`` when a sensor has
@@ -179,7 +178,7 @@ def replay(path: Path, *, sensor: str | None = None, unit: str | None = None, st
         for t, name, s, xyz, gyro in bar:
             cal = cals.get(name)
             if cal is None:
-                cfg = PipelineConfig.for_sensor(s, plan[name][1], **(options or {}), **(sensor_options or {}).get(s, {}))
+                cfg = PipelineConfig.for_sensor(s, plan[name][1], **(sensor_options or {}).get(s, {}))
                 cal = cals[name] = SensorCalibrator(s, cfg, validator=validator)
                 next_status[name] = t
             for ev in cal.push(t, xyz, gyro):
