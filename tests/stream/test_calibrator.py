@@ -367,7 +367,7 @@ def test_replay_uses_the_given_validator(tumbling_mag: sim.Recording, tmp_path: 
     out = capsys.readouterr().out
     assert "with the validator" in out and "mag: collecting" in out and "offset:" not in out
     result = replay.replay(csv_path, sensor="mag", progress=False, validator=FuzzyValidator.load(tmp_path / "never.json"),
-                           options={"partial_fit": False})
+                           sensor_options={"mag": {"partial_fit": False}})
     cal = result["calibrators"]["mag"]
     assert cal.calibration is None and cal.status().predicted_error == pytest.approx(0.5)
     args = parser.parse_args(["replay", str(csv_path), "--sensor", "mag", "--validator", str(tmp_path / "bad.json")])
