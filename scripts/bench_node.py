@@ -169,6 +169,7 @@ def publisher(seconds: float, imu_rate: float, mag_rate: float) -> int:
                           "publish_us": busy / max(n, 1) * 1e6,
                           "late_mean_ms": float(late.mean() * 1e3), "late_p99_ms": float(np.percentile(late, 99) * 1e3),
                           "late_max_ms": float(late.max() * 1e3), "late_end_ms": float(late[-1] * 1e3)}), flush=True)
+        time.sleep(1.0)  # a best-effort writer destroyed at once drops its last burst in transit; a driver runs on
         return 0
     finally:
         node.destroy_node()
