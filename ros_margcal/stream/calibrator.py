@@ -442,7 +442,6 @@ class SensorCalibrator(ChangeDetection, Evaluation):
             elif self._predicted is not None:
                 shown = pct(self._predicted) if self._predicted <= 1.0 else "over 100 % (not determined)"
                 msg = f"collecting: {pct(self.coverage)} coverage, predicted error {shown} > {pct(self.threshold)}"
-                msg += self._static_note()
             elif self.passed == 0 and self.seen:
                 msg = f"collecting: every sample dropped so far: {self._intake.drop_summary()}"
             elif self.kept == 0 and self._gate is not None:
@@ -452,6 +451,7 @@ class SensorCalibrator(ChangeDetection, Evaluation):
                        f"{raise_hint(self.sensor, 'gate_cv_threshold')}")
             else:
                 msg = f"collecting: {self._last_reason}"
+            msg += self._static_note()
             dropped = sum(self.dropped.values())
             if self.passed and 2 * dropped > self.seen:
                 msg += f"; {self._intake.drop_summary()}"

@@ -63,6 +63,10 @@ class Evaluation(PartialCalibration):
     still updated): a 0.2 % move turns a direction by < 0.12 deg, far below a bin's ~20 deg ..."""
     CENTER_MOVE_SIGMAS = 3.0
     """... as does one within this many standard errors of the sphere fit along the move (``_center_moved``)."""
+    MIN_SPHERE_SHARE = 0.5
+    """A sphere fit whose radius is below this share of the unit's smallest plausible field (``norm_min``) is the
+    noise of a sensor that has barely turned, not the field's sphere: the centre stays (a still BROAD recording after
+    its magnet: a 1.1 uT sphere about the readings themselves, every direction bin filled, "100 % coverage")."""
     defer_evaluation: bool = False
     """False (replay, the node's worker process): a due evaluation (centre, validator, fit) runs inside ``push``.
     True: ``push`` only records it and ``run_pending`` runs it, e.g. on a worker thread, so the
@@ -153,6 +157,8 @@ class Evaluation(PartialCalibration):
         return t - self._full_eval_t < wait
 
     def _update_center(self) -> None:
+        """Before a calibration (or after a change): the direction bins' centre from a sphere fit of the buffer, kept
+        when it barely moved or its radius is no field's (``MIN_SPHERE_SHARE``)."""
         if self._cal is not None and not self._changed:
             return
         pts = np.concatenate([self._buffer.points(), self._recent_points()])
@@ -167,6 +173,8 @@ class Evaluation(PartialCalibration):
         if not (np.isfinite(c).all() and np.isfinite(rad2) and rad2 > 0):
             return
         rad = math.sqrt(rad2)
+        if rad < self.MIN_SPHERE_SHARE * self.config.norm_min:
+            return
         old = self._buffer.center
         if self._buffer.radius is not None and not self._center_moved(a, y - a @ sol, c - old, rad):
             c = old  # keep the bins: re-binning costs ~2 ms at 1000 samples and would change nothing real

@@ -102,7 +102,7 @@ from ..model.heading import (
     with_offset_noise,
 )
 from ..model.mounting import Mounting
-from .config import PipelineConfig, guard_rails
+from .config import PipelineConfig, apart, guard_rails
 
 __all__ = ["AZIMUTH_SECTORS", "DEFAULT_INCLINATION_DEG", "NEAR_LEVEL_NORM_REL_STD", "NEAR_LEVEL_TILT_DEG", "RING_AXIS_MAX_DEG",
            "RING_FLAT", "SIGMA_REUSE_TOLERANCE", "HeadingFigures", "PartialResult", "azimuth_coverage", "azimuth_sector",
@@ -398,8 +398,9 @@ def partial_fit(series: Array, prior: Calibration | None, cfg: PipelineConfig, *
         rich = not tilt <= cfg.partial_max_tilt_deg
         # the cheap verdicts first: a fit they refuse needs no norm uncertainty and no heading figures
         if rich and not (cfg.early_fit and current is None):
+            shown, limit = apart(tilt, cfg.partial_max_tilt_deg)
             return PartialResult(cal, pf.updated, pf.from_prior, kind, tilt, math.inf, None,
-                                 f"partial fit: the data are tilted up to {tilt:.0f} deg > {cfg.partial_max_tilt_deg:g} "
+                                 f"partial fit: the data are tilted up to {shown} deg > {limit} "
                                  "deg, not a ring or band: the full path decides", sigma=pf.residual_sigma,
                                  gyro_explained=pf.gyro_explained, gyro_used=pf.gyro_used, gyro_frame=pf.gyro_frame,
                                  level=pf.level)

@@ -205,3 +205,23 @@ def test_a_static_magnetometer_says_it_has_not_turned(independent: ModuleType) -
     msg = cal.status().message
     assert cal.calibration is None
     assert "the sensor has not turned: the last 500 samples stay within" in msg and "field norm only" in msg
+    assert cal.coverage < 0.05, (cal.coverage, msg)  # the noise about one reading is no sphere (it was 100 %)
+
+
+def test_a_sensor_still_after_a_change_is_not_covered(independent: ModuleType) -> None:
+    """A tumble, then (another offset: a sensor change) the sensor at rest: the direction bins are not centred on
+    the noise of the still readings (a BROAD recording with its magnet showed "100 % coverage"), and the status
+    says the sensor has not turned."""
+    moving = independent.generate("mag", "tumble", duration_s=60.0, rate_hz=50.0, seed=31)
+    jumped = np.asarray(moving["truth"]["offset"]) * 1e6 + [20.0, -10.0, 10.0]  # µT: 24.5 µT off, half the field
+    still = independent.generate("mag", "static", duration_s=40.0, rate_hz=50.0, seed=32, hard_iron=jumped)
+    cal = SensorCalibrator("mag")
+    for t, v in zip(moving["t"], moving["xyz"], strict=True):
+        cal.push(float(t), v)
+    assert cal.calibration is not None
+    for t, v in zip(still["t"], still["xyz"], strict=True):
+        cal.push(60.0 + float(t), v)
+    msg = cal.status().message
+    assert cal.changes == 1, msg
+    assert cal.coverage < 0.05, (cal.coverage, msg)
+    assert "the sensor has not turned" in msg
