@@ -1,12 +1,14 @@
 """The stream's guard rails for ``margcal calibrate``: what the online calibrator would not publish is not written.
 
-A batch fit (plain, per side of an offset change, or with the prior) is refused when ``stream.config.plausibility``
-refuses it (field norm implausible in a known unit, parameter uncertainty, offset beyond the limit, axis gains), and
-a magnetometer's also when its predicted heading error p95, level (``model.heading``, at the configured inclination:
-a position's model field, else 60°), exceeds ``max_heading_p95_deg`` or cannot be determined; a magnetometer's prior
-fit (partial by design) is judged by that figure instead of the uncertainty of its prior terms. The command then
-exits ``EXIT_REFUSED`` without writing; ``--force`` writes it, with ``forced`` and the reason in the calibration's
-``method`` (the file's free-form field; the node shows it) and in the JSON.
+A batch fit (plain, per side of an offset change, or with the prior) is refused when its residual RMS exceeds
+``max_residual`` (as the stream's ``guard_rails``: one ellipsoid does not explain the readings), when
+``stream.config.plausibility`` refuses it (field norm implausible in a known unit, parameter uncertainty, offset
+beyond the limit, axis gains), and a magnetometer's also when its predicted heading error p95, level
+(``model.heading``, at the configured inclination: a position's model field, else 60°), exceeds
+``max_heading_p95_deg`` or cannot be determined; a magnetometer's prior fit (partial by design) is judged by that
+figure instead of the uncertainty of its prior terms. The command then exits ``EXIT_REFUSED`` without writing;
+``--force`` writes it, with ``forced`` and the reason in the calibration's ``method`` (the file's free-form field;
+the node shows it) and in the JSON.
 """
 
 from __future__ import annotations
@@ -51,6 +53,12 @@ def refusal(cal: Calibration, cfg: PipelineConfig | None) -> str:
     """
     if cfg is None:
         return ""
+    st = cal.stats
+    if st is not None and not st.rms_relative <= cfg.max_residual:
+        cause = ("iron or a magnet moving near the sensor, or a change not located" if cfg.sensor == "mag" else
+                 "acceleration in the samples: fit the still ones, not --samples all")
+        return (f"residual RMS {100 * st.rms_relative:.3g} % > limit {100 * cfg.max_residual:.3g} % (max_residual): one "
+                f"ellipsoid does not explain these readings ({cause})")
     partial = cfg.sensor == "mag" and cal.method.startswith("map")
     why = plausibility(cal, replace(cfg, max_parameter_std=_NO_STD_LIMIT) if partial else cfg)
     if why:

@@ -114,3 +114,23 @@ def test_an_undetermined_heading_figure_is_said_not_printed_as_millions_of_degre
                       covariance=cov, parameter_names=names)
     assert "not determined" in heading_text(cal)
     assert "not determined" in refusal(cal, config_for("mag", "uT"))
+
+
+def test_a_residual_beyond_the_streams_limit_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The clean sphere passes; a 3 % residual limit below what its 4 % noise leaves (--set max_residual=0.03, as
+    the stream would refuse it): exit 4 with the residual named and nothing written, --force writes it marked."""
+    rng = np.random.default_rng(SEED + 1)
+    rec = simulate(random_sensor(rng, "mag"), directions("uniform", 2000, rng), noise=0.04, rng=rng,
+                   t=np.arange(2000) / 50.0)
+    rec.raw = rec.raw * 1e6
+    path = write_csv(tmp_path / "noisy_mag.csv", rec)
+    out = tmp_path / "cal.yaml"
+    code, _, err = _run(capsys, "calibrate", str(path), "--unit", "uT", "-o", str(out))
+    assert code == 0 and out.exists(), err  # 4 % is within the default 5 %
+    out.unlink()
+    code, _, err = _run(capsys, "calibrate", str(path), "--unit", "uT", "--set", "max_residual=0.03", "-o", str(out))
+    assert code == EXIT_REFUSED and not out.exists(), err
+    assert "refused by the guard rails: residual RMS" in err and "> limit 3 % (max_residual)" in err
+    code, _, err = _run(capsys, "calibrate", str(path), "--unit", "uT", "--set", "max_residual=0.03", "-o", str(out),
+                        "--force")
+    assert code == 0 and "forced past the guard rails: residual RMS" in load_calibrations(out)["mag"].method

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from ros_margcal.cli import main
+from ros_margcal.cli.calibrate_guard import EXIT_REFUSED
 from ros_margcal.model.calibration_file import load_calibrations
 
 
@@ -128,16 +129,19 @@ def test_real_attached_magnet_is_located(real_recording: Callable[[str], Path], 
     assert any(abs(p["offset"][2] - 58.0) < 5.0 for p in parts)
 
 
-def test_motion_in_accelerometer_data_keeps_the_plain_fit_with_a_warning(independent: ModuleType, tmp_path: Path,
-                                                                          capsys: pytest.CaptureFixture[str]) -> None:
-    """All samples of a moving accelerometer: a high residual but no offset change, so the plain fit stands."""
+def test_motion_in_accelerometer_data_keeps_the_plain_fit_past_the_guard_only_forced(
+        independent: ModuleType, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """All samples of a moving accelerometer: a high residual but no offset change, so the plain fit stands; its
+    residual is beyond the stream's ``max_residual``, so it is refused (exit 4, nothing written) unless forced."""
     rec = independent.generate("accel", "rest_and_move", duration_s=60.0, seed=3)
     path = tmp_path / "acc.csv"
     independent.write_csv(path, rec)
     out = tmp_path / "fit.json"
     rc = main(["calibrate", str(path), "--sensor", "accel", "--samples", "all", "--json", str(out)])
     captured = capsys.readouterr()
+    assert rc == EXIT_REFUSED and not out.exists()
+    assert "no offset change located" in captured.err and "requested fit" not in captured.out
+    assert "refused by the guard rails: residual RMS" in captured.err and "not --samples all" in captured.err
+    rc = main(["calibrate", str(path), "--sensor", "accel", "--samples", "all", "--json", str(out), "--force"])
     assert rc == 0
-    assert "residual RMS" in captured.err and "no offset change located" in captured.err
-    assert "requested fit" not in captured.out
-    assert json.loads(out.read_text())["method"] == "lm"
+    assert json.loads(out.read_text())["method"].startswith("lm forced past the guard rails: residual RMS")
