@@ -157,6 +157,10 @@ def _rho(loss: str, zz: Array) -> tuple[Array, Array]:
     return zz, np.ones_like(zz)
 
 
+RUNAWAY_AXIS_RATIO = 5.0
+"""A fit out of iterations whose ``W`` has axes further apart than this is running away, not converging slowly: soft
+iron leaves real sensors' axes within 1.5 of each other."""
+
 def _lm(
     fun: ResJac, x0: Array, max_iter: int, xtol: float = 1e-8, loss: str = "linear", f_scale: float = 1.0
 ) -> tuple[Array, Array, Array, Array, int]:
@@ -205,7 +209,27 @@ def _lm(
     what = "lm" if loss == "linear" else f"lm with loss {loss!r}"
     msg = (f"{what} did not converge in {max_iter} iterations (cost {cost:.4g}); raise max_iter "
            "(replay/calibrate: --set max_iter=...) or check the data for outliers")
-    raise ConvergenceError(msg)
+    exc = ConvergenceError(msg)
+    exc.iterate = x  # type: ignore[attr-defined]  # where it stopped: _ran_away tells a runaway from a slow fit
+    raise exc
+
+
+def _ran_away(exc: ConvergenceError, model: str, what: str) -> ConvergenceError:
+    """``exc`` of a fit out of iterations, re-worded when its last iterate is no sensor's ellipsoid (``W`` not positive
+    definite, or axes ``RUNAWAY_AXIS_RATIO`` apart): more iterations would not help (a cap of 5-30 deg of the sphere,
+    or BROAD's magnet 1 cm from the sensor, run away so)."""
+    theta = getattr(exc, "iterate", None)
+    if theta is None or not np.isfinite(theta).all():
+        return exc
+    mat = unpack(theta, model)[1]
+    sv = np.linalg.svd(mat, compute_uv=False)
+    ratio = float(sv[0] / sv[-1]) if sv[-1] > 0 else math.inf
+    if np.linalg.det(mat) > 0 and ratio <= RUNAWAY_AXIS_RATIO:
+        return exc
+    shape = "W not positive definite" if not np.linalg.det(mat) > 0 else f"axes {ratio:.3g} times apart"
+    return ConvergenceError(f"{what} did not converge: it ran away to no sensor's ellipsoid ({shape}), more iterations "
+                            "will not help; the readings cover too few directions, or lie on no one ellipsoid (iron or a "
+                            "magnet moving near the sensor)")
 
 
 def _start(prep: Prepared, model: str, init: str | Calibration | None) -> Array:
@@ -350,7 +374,10 @@ def fit(
         params, rr, max_abs, cov = lin_auto_fit(prep.z, prep.scatter, n_int, prep.sc)  # a singular W is rejected
     else:
         if method == "lm":
-            theta, r, jt, iterations, robust = _fit_lm(prep, model, n_int, scale_free, loss, f_scale, init, max_iter)
+            try:
+                theta, r, jt, iterations, robust = _fit_lm(prep, model, n_int, scale_free, loss, f_scale, init, max_iter)
+            except ConvergenceError as exc:
+                raise _ran_away(exc, model, "lm" if loss == "linear" else f"lm with loss {loss!r}") from exc
             if not np.isfinite(theta).all():
                 msg = "lm diverged to non-finite parameters; check the data for outliers or use a robust loss"
                 raise ConvergenceError(msg)

@@ -453,3 +453,19 @@ def test_the_square_root_of_a_matrix_that_is_no_ellipsoid_is_nan_without_a_warni
         warnings.simplefilter("error")
         assert np.isnan(sqrt_pd(np.diag([1.0, 1.0, -0.5]))).any()
         np.testing.assert_allclose(sqrt_pd(np.diag([4.0, 9.0, 1.0])), np.diag([2.0, 3.0, 1.0]))
+
+
+@pytest.mark.parametrize("loss", ["linear", "soft_l1"])
+def test_a_fit_that_runs_away_says_more_iterations_will_not_help(loss: str) -> None:
+    """A 20 deg cap of the sphere: LM runs away (its axes 24-28x apart at 200 iterations, 1600x at 20000), so the
+    error says so instead of asking for more iterations; a good sphere stopped after 2 still asks for them."""
+    rng = np.random.default_rng(0)
+    th, ph = np.deg2rad(20.0) * np.sqrt(rng.uniform(0, 1, 300)), rng.uniform(0, 2 * np.pi, 300)
+    cap = 48.0 * np.c_[np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)] + [10.0, -5.0, 3.0]
+    with pytest.raises(ConvergenceError, match="did not converge: it ran away to no sensor's ellipsoid") as got:
+        fit(cap + rng.normal(0, 0.5, cap.shape), model="sym", method="lm", loss=loss, max_iter=200)
+    assert "raise max_iter" not in str(got.value)
+    u = rng.normal(size=(300, 3))
+    sphere = 48.0 * u / np.linalg.norm(u, axis=1)[:, None] @ np.diag([1.1, 0.95, 1.0]) + [10.0, -5.0, 3.0]
+    with pytest.raises(ConvergenceError, match=r"did not converge in 1 iterations .*raise max_iter"):
+        fit(sphere + rng.normal(0, 0.5, sphere.shape), model="sym", method="lm", loss=loss, max_iter=1)
