@@ -56,7 +56,7 @@ def refusal(cal: Calibration, cfg: PipelineConfig | None) -> str:
     st = cal.stats
     if st is not None and not st.rms_relative <= cfg.max_residual:
         cause = ("iron or a magnet moving near the sensor, or a change not located" if cfg.sensor == "mag" else
-                 "acceleration in the samples: fit the still ones, not --samples all")
+                 "linear acceleration: the sensor moved while sampled; record still poses")
         return (f"residual RMS {100 * st.rms_relative:.3g} % > limit {100 * cfg.max_residual:.3g} % (max_residual): one "
                 f"ellipsoid does not explain these readings ({cause})")
     partial = cfg.sensor == "mag" and cal.method.startswith("map")

@@ -141,7 +141,7 @@ def test_motion_in_accelerometer_data_keeps_the_plain_fit_past_the_guard_only_fo
     captured = capsys.readouterr()
     assert rc == EXIT_REFUSED and not out.exists()
     assert "no offset change located" in captured.err and "requested fit" not in captured.out
-    assert "refused by the guard rails: residual RMS" in captured.err and "not --samples all" in captured.err
+    assert "refused by the guard rails: residual RMS" in captured.err and "record still poses" in captured.err
     rc = main(["calibrate", str(path), "--sensor", "accel", "--samples", "all", "--json", str(out), "--force"])
     assert rc == 0
     assert json.loads(out.read_text())["method"].startswith("lm forced past the guard rails: residual RMS")
