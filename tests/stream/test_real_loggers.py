@@ -225,3 +225,15 @@ def test_a_sensor_still_after_a_change_is_not_covered(independent: ModuleType) -
     assert cal.changes == 1, msg
     assert cal.coverage < 0.05, (cal.coverage, msg)
     assert "the sensor has not turned" in msg
+
+
+def test_real_still_sensor_after_a_magnet_is_not_called_covered(real_recording: Callable[[str], Path]) -> None:
+    """BROAD's magnet at 5 cm (a sensor change at ~132 s) then little turning: the direction bins are not centred on
+    the still readings' noise (it read "100.0 % coverage, predicted error 57.8 %: turn the sensor through the
+    directions not yet covered"); the status says the sensor has not turned."""
+    out = replay(real_recording("broad_36_disturbed_attached_magnet_5cm_mag.csv"), sensor="mag", unit="uT",
+                 status_every=0.0, progress=False)
+    cal = out["calibrators"]["mag"]
+    msg = cal.status().message
+    assert cal.changes == 1 and cal.coverage < 0.2, (cal.coverage, msg)
+    assert "100.0 % coverage" not in msg and "the sensor has not turned" in msg
