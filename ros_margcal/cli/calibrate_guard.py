@@ -22,7 +22,7 @@ from ..model.calibration import FORCED, Calibration
 from ..model.errors import InputError
 from ..model.heading import format_bound, heading_p95_quantile
 from ..stream.config import PipelineConfig, plausibility
-from .fit_rescue import HEADING_DETERMINED_DEG, inclination_of
+from .fit_rescue import HEADING_DETERMINED_DEG, inclination_of, residual_note
 
 __all__ = ["EXIT_REFUSED", "forced", "norm_source", "refusal"]
 
@@ -53,12 +53,11 @@ def refusal(cal: Calibration, cfg: PipelineConfig | None) -> str:
     """
     if cfg is None:
         return ""
-    st = cal.stats
-    if st is not None and not st.rms_relative <= cfg.max_residual:
+    high = residual_note(cal, cfg)
+    if high:
         cause = ("iron or a magnet moving near the sensor, or a change not located" if cfg.sensor == "mag" else
                  "linear acceleration: the sensor moved while sampled; record still poses")
-        return (f"residual RMS {100 * st.rms_relative:.3g} % > limit {100 * cfg.max_residual:.3g} % (max_residual): one "
-                f"ellipsoid does not explain these readings ({cause})")
+        return f"{high} (max_residual; {cause})"
     partial = cfg.sensor == "mag" and cal.method.startswith("map")
     why = plausibility(cal, replace(cfg, max_parameter_std=_NO_STD_LIMIT) if partial else cfg)
     if why:

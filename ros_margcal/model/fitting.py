@@ -209,18 +209,24 @@ def _lm(
     what = "lm" if loss == "linear" else f"lm with loss {loss!r}"
     msg = (f"{what} did not converge in {max_iter} iterations (cost {cost:.4g}); raise max_iter "
            "(replay/calibrate: --set max_iter=...) or check the data for outliers")
-    exc = ConvergenceError(msg)
-    exc.iterate = x  # type: ignore[attr-defined]  # where it stopped: _ran_away tells a runaway from a slow fit
-    raise exc
+    raise _OutOfIterations(msg, x)
+
+
+class _OutOfIterations(ConvergenceError):
+    """``_lm`` ran out of iterations at ``iterate``: ``_ran_away`` tells a runaway from a slow fit."""
+
+    def __init__(self, msg: str, iterate: Array) -> None:
+        super().__init__(msg)
+        self.iterate = iterate
 
 
 def _ran_away(exc: ConvergenceError, model: str, what: str) -> ConvergenceError:
     """``exc`` of a fit out of iterations, re-worded when its last iterate is no sensor's ellipsoid (``W`` not positive
     definite, or axes ``RUNAWAY_AXIS_RATIO`` apart): more iterations would not help (a cap of 5-30 deg of the sphere,
     or BROAD's magnet 1 cm from the sensor, run away so)."""
-    theta = getattr(exc, "iterate", None)
-    if theta is None or not np.isfinite(theta).all():
+    if not isinstance(exc, _OutOfIterations) or not np.isfinite(exc.iterate).all():
         return exc
+    theta = exc.iterate
     mat = unpack(theta, model)[1]
     sv = np.linalg.svd(mat, compute_uv=False)
     ratio = float(sv[0] / sv[-1]) if sv[-1] > 0 else math.inf

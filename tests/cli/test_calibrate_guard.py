@@ -130,7 +130,8 @@ def test_a_residual_beyond_the_streams_limit_is_refused(tmp_path: Path, capsys: 
     out.unlink()
     code, _, err = _run(capsys, "calibrate", str(path), "--unit", "uT", "--set", "max_residual=0.03", "-o", str(out))
     assert code == EXIT_REFUSED and not out.exists(), err
-    assert "refused by the guard rails: residual RMS" in err and "> limit 3 % (max_residual)" in err
+    assert "refused by the guard rails: residual RMS" in err and "> limit 3 %: one calibration does not explain" in err
+    assert "(max_residual; iron or a magnet moving near the sensor" in err
     code, _, err = _run(capsys, "calibrate", str(path), "--unit", "uT", "--set", "max_residual=0.03", "-o", str(out),
                         "--force")
     assert code == 0 and "forced past the guard rails: residual RMS" in load_calibrations(out)["mag"].method
