@@ -226,13 +226,13 @@ def _ran_away(exc: ConvergenceError, model: str, what: str) -> ConvergenceError:
     or BROAD's magnet 1 cm from the sensor, run away so)."""
     if not isinstance(exc, _OutOfIterations) or not np.isfinite(exc.iterate).all():
         return exc
-    theta = exc.iterate
-    mat = unpack(theta, model)[1]
+    mat = unpack(exc.iterate, model)[1]
     sv = np.linalg.svd(mat, compute_uv=False)
     ratio = float(sv[0] / sv[-1]) if sv[-1] > 0 else math.inf
-    if np.linalg.det(mat) > 0 and ratio <= RUNAWAY_AXIS_RATIO:
+    positive = bool(np.linalg.det(mat) > 0)
+    if positive and ratio <= RUNAWAY_AXIS_RATIO:
         return exc
-    shape = "W not positive definite" if not np.linalg.det(mat) > 0 else f"axes {ratio:.3g} times apart"
+    shape = f"axes {ratio:.3g} times apart" if positive else "W not positive definite"
     return ConvergenceError(f"{what} did not converge: it ran away to no sensor's ellipsoid ({shape}), more iterations "
                             "will not help; the readings cover too few directions, or lie on no one ellipsoid (iron or a "
                             "magnet moving near the sensor)")
