@@ -77,6 +77,7 @@ _E = [np.array(m, dtype=np.float64) for m in (  # d W / d (w_xx, w_yy, w_zz, w_x
     [[1, 0, 0], [0, 0, 0], [0, 0, 0]], [[0, 0, 0], [0, 1, 0], [0, 0, 0]], [[0, 0, 0], [0, 0, 0], [0, 0, 1]],
     [[0, 1, 0], [1, 0, 0], [0, 0, 0]], [[0, 0, 1], [0, 0, 0], [1, 0, 0]], [[0, 0, 0], [0, 0, 1], [0, 1, 0]])]
 _E_STACK = np.stack(_E)
+_E_STACK_T = _E_STACK.transpose(0, 2, 1)
 
 
 @dataclass(frozen=True)
@@ -149,6 +150,9 @@ def skew(c: Array) -> Array:
     return np.array([[0.0, c[2], -c[1]], [-c[2], 0.0, c[0]], [c[1], -c[0], 0.0]]).T
 
 
+_SKEW_E = np.stack([skew(e) for e in np.eye(3)])  # skew(e_i): skew(c) = sum_i c_i _SKEW_E[i]
+
+
 def _axial_basis(s: Array) -> Array:
     """``axial(E_m S^T E_kk)`` of each block (6, 3, N, 3): ``axial(W S^T diag(1 + kappa))`` is linear in W's
     entries and in the gyro scale errors, so a residual evaluation needs contractions, no (N, 3, 3) product.
@@ -167,32 +171,27 @@ def gyro_residuals(blocks: GyroBlocks, b: Array, mat: Array, beta: Array, kappa:
     """Residuals (3N,: x, y, z of each block in turn, raw units) and their transposed Jacobian (15, 3N) over
     ``(b_x, b_y, b_z, w_xx, w_yy, w_zz, w_xy, w_xz, w_yz, beta_x, beta_y, beta_z, kappa_x, kappa_y, kappa_z)``
     (module docstring; the rate is ``(1 + kappa) omega - beta``, ``kappa`` the gyro's scale errors per axis).
-    Cross products are row products with ``_skew`` matrices: (N, 3) @ (3, 3), no per-block loop."""
+    Cross products are row products with ``skew`` matrices, each group of Jacobian rows one stacked product:
+    a fit evaluates this tens of times, and on a few hundred blocks numpy's per-call cost is most of it."""
     winv_t = np.linalg.inv(mat).T
     sc = 1.0 + kappa
     a = blocks.theta * sc - blocks.t[:, None] * beta  # Theta' - T beta
     w6 = np.array([mat[0, 0], mat[1, 1], mat[2, 2], mat[0, 1], mat[0, 2], mat[1, 2]])
-    ax_w = np.tensordot(sc, blocks.ax, axes=([0], [1]))  # (6, N, 3): axial(E_m S'^T)
+    ax_w = np.einsum("k,mkni->mni", sc, blocks.ax)  # (6, N, 3): axial(E_m S'^T)
     beta_k = skew(beta)
-    wb = mat @ b
-    u = np.tensordot(w6, ax_w, 1) - a @ skew(wb) + blocks.p @ (mat.T @ beta_k)  # beta x y = -y @ skew(beta)
+    k_wb = skew(mat @ b)  # row k: e_k x W b
+    u = np.tensordot(w6, ax_w, 1) - a @ k_wb + blocks.p @ (mat.T @ beta_k)  # beta x y = -y @ skew(beta)
     g = u @ winv_t  # W^-1 u
     r = blocks.d + g
-    nb = len(blocks)
-    jt = np.empty((15, nb, 3))
-    for i in range(3):  # d u / d b_i = -(Theta' - T beta) x W e_i
-        jt[i] = a @ (-skew(mat[:, i]) @ winv_t)
-    for m, e in enumerate(_E):  # d u / d W[e] = axial(e S'^T) - a x e b - beta x e P; dr = W^-1 (du - e g)
-        du = ax_w[m] - a @ skew(e @ b) + blocks.p @ (e.T @ beta_k) - g @ e.T
-        jt[3 + m] = du @ winv_t
-    q = (blocks.p - blocks.t[:, None] * b) @ mat.T  # d u / d beta_i = [W (P - T b)] x e_i
-    eye = np.eye(3)
-    for i in range(3):
-        jt[9 + i] = q @ (skew(eye[i]) @ winv_t)
-    for k in range(3):  # d u / d kappa_k = axial(W S^T E_kk) - Theta_k e_k x W b
-        du = np.tensordot(w6, blocks.ax[:, k], 1) - blocks.theta[:, k:k + 1] * np.cross(eye[k], wb)
-        jt[12 + k] = du @ winv_t
-    return r.reshape(-1), jt.reshape(15, -1)
+    jt = np.empty((15, len(blocks), 3))
+    jt[0:3] = a @ -np.tensordot(mat.T, _SKEW_E, 1)  # d u / d b_i = -(Theta' - T beta) x W e_i
+    # d u / d W[e] = axial(e S'^T) - a x e b - beta x e P; dr = W^-1 (du - e g)
+    jt[3:9] = (ax_w - a @ np.tensordot(_E_STACK @ b, _SKEW_E, 1) + blocks.p @ (_E_STACK_T @ beta_k)
+               - g @ _E_STACK_T)
+    jt[9:12] = ((blocks.p - blocks.t[:, None] * b) @ mat.T) @ _SKEW_E  # d u / d beta_i = [W (P - T b)] x e_i
+    # d u / d kappa_k = axial(W S^T E_kk) - Theta_k e_k x W b
+    jt[12:15] = np.tensordot(w6, blocks.ax, 1) - blocks.theta.T[:, :, None] * k_wb[:, None, :]
+    return r.reshape(-1), (jt.reshape(-1, 3) @ winv_t).reshape(15, -1)
 
 
 @dataclass

@@ -41,6 +41,7 @@ from collections.abc import Callable
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.fft import next_fast_len
 from scipy.optimize import least_squares
 from scipy.signal import lfilter
 
@@ -67,8 +68,9 @@ def noise_model(r: Array, absorbed: Array | None = None) -> tuple[float, float] 
     if max_lag < 2:
         return None
     rc = r - r.mean()
-    f = np.fft.rfft(rc, 2 * m)
-    acf = np.fft.irfft(f * np.conj(f), 2 * m)[: max_lag + 1]
+    n2 = next_fast_len(2 * m, real=True)  # zero-padded to at least 2m: the circular correlation is the linear one
+    f = np.fft.rfft(rc, n2)
+    acf = np.fft.irfft(f * np.conj(f), n2)[: max_lag + 1]
     if not acf[0] > 0:
         return None
     rho = acf[1:] / acf[0]
@@ -156,7 +158,7 @@ class Absorbed:
 
     def __init__(self, u: Array, lags: Array) -> None:
         m = len(u)
-        self.m, self.n2 = m, 2 * m
+        self.m, self.n2 = m, next_fast_len(2 * m, real=True)  # at least 2m, of small prime factors: 2m = 2 x 233 cost 5x
         self.lags = np.r_[0, np.asarray(lags, dtype=np.int64)]
         self.u = np.asarray(u, dtype=np.float64)
         self.e = np.full(m, 1.0 / math.sqrt(m))
