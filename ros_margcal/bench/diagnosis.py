@@ -31,6 +31,7 @@ import json
 import multiprocessing
 import os
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -67,6 +68,16 @@ def _make(sensor: str, effect: str | None, magnitude: float, coverage: str, seed
                        effects=eff)
         rec = rec.slice(rec.still)  # what the inactivity gate passes on: the still samples (motion_leak leaks in)
     return rec, noise * truth.raw_radius
+
+
+def _exit_with_parent(parent: int) -> None:
+    """A pool worker's initializer: exit when the benchmark's process is gone (killed by a timeout or SIGKILL, it
+    cannot end its pool, and the workers would run on as orphans)."""
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(1.0)
+        os._exit(1)
+    threading.Thread(target=watch, daemon=True).start()
 
 
 def _case(job: tuple[str, str | None, float, str, int, float]) -> dict[str, Any]:
@@ -240,6 +251,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--no-real", action="store_true", help="skip the real recordings")
     p.add_argument("--no-speed", action="store_true", help="skip the 5-minute speed run")
     args = p.parse_args(argv)
+    if args.limit < 0 or args.jobs < 1:
+        p.error(f"--limit must be >= 0 (0: every recording) and --jobs >= 1, got {args.limit} and {args.jobs}")
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "rows.jsonl").unlink(missing_ok=True)
     design = _jobs(args.quick, args.seed)
@@ -247,7 +260,7 @@ def main(argv: list[str] | None = None) -> int:
     subset = len(jobs) < len(design)
     t0 = time.monotonic()
     rows: list[dict[str, Any]] = []
-    with multiprocessing.get_context("fork").Pool(max(1, args.jobs)) as pool:
+    with multiprocessing.get_context("fork").Pool(args.jobs, _exit_with_parent, (os.getpid(),)) as pool:
         for r in pool.imap_unordered(_case, jobs):
             rows.append(r)
             with (args.out / "rows.jsonl").open("a") as fh:  # follow a long run as it goes

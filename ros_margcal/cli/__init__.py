@@ -11,11 +11,28 @@ import importlib
 import logging
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 
 from .. import __version__
 from ..model.errors import MargCalError, one_line
 
-__all__ = ["main"]
+__all__ = ["main", "plot_file"]
+
+PLOT_SUFFIXES = (".png", ".pdf", ".svg", ".svgz", ".jpg", ".jpeg", ".tif", ".tiff", ".webp", ".eps", ".ps")
+"""What ``--plot FILE`` may end with: the formats matplotlib's Agg backend writes (checked before the job runs)."""
+
+
+def plot_file(value: str) -> Path:
+    """``--plot FILE``'s argparse type: a path whose suffix names an image format matplotlib writes, told at once
+    (not after a replay or an evaluation, as matplotlib's own "Format 'txt' is not supported")."""
+    path = Path(value)
+    if path.suffix.lower() not in PLOT_SUFFIXES:
+        msg = f"{value!r}: a plot file must end with one of {', '.join(PLOT_SUFFIXES)}"
+        raise argparse.ArgumentTypeError(msg)
+    if path.is_dir():
+        msg = f"{value!r} is a directory; give a file name such as {path / 'plot.png'}"
+        raise argparse.ArgumentTypeError(msg)
+    return path
 
 _COMMAND_MODULES = ("simulate", "calibrate", "replay", "validator", "diagnose", "demo", "watch")
 BENCH_AREAS = ("fitting", "coverage", "pipeline", "diagnosis")

@@ -53,6 +53,10 @@ def refusal(cal: Calibration, cfg: PipelineConfig | None) -> str:
     """
     if cfg is None:
         return ""
+    n = cal.stats.n_points if cal.stats is not None else None
+    if n is not None and n < cfg.min_points:  # the stream's first check: a fit of 10 samples had 0.09 % residual at 0.5 % noise
+        return (f"{n} samples < min_points {cfg.min_points}: too few to fit the model and judge the fit (its residual "
+                "falls below the noise); record more")
     high = residual_note(cal, cfg)
     if high:
         cause = ("iron or a magnet moving near the sensor, or a change not located" if cfg.sensor == "mag" else

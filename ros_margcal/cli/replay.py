@@ -41,6 +41,7 @@ from ..stream.replay import replay, replay_plan
 from ..stream.status import Status
 from ..stream.view import coverage_view
 from ..validation.shipped import load_validator
+from . import plot_file
 from .position import add_position_args, field_line, position_options
 from .raw_units import prepare, resolve_unit
 from .set_option import SET_HELP, parse_sets, sensor_options
@@ -75,7 +76,7 @@ def register(subparsers: Any) -> None:
     p.add_argument("--status-every", type=float, default=10.0, metavar="S",
                    help="status line every S seconds of recording time (default 10; 0 = events only)")
     p.add_argument("--json", type=Path, metavar="FILE", help="write the status timeline and final calibrations as JSON")
-    p.add_argument("--plot", type=Path, metavar="FILE.png",
+    p.add_argument("--plot", type=plot_file, metavar="FILE.png",
                    help="write the live view (samples, covered bins, fitted ellipsoid: what RViz shows) and the coverage plot")
     p.add_argument("-q", "--quiet", action="store_true", help="no timeline, only the final calibrations")
     p.add_argument("--full-only", action="store_true",

@@ -27,6 +27,7 @@ from ..validation.baselines import BASELINES
 from ..validation.fuzzy import FuzzyValidator
 from ..validation.roc import evaluate_threshold, roc_auc, roc_curve
 from ..validation.threshold import DEFAULT_MAX_ERROR, DEFAULT_MAX_FPR, ThresholdValidator
+from . import plot_file
 
 __all__ = ["evaluate", "register", "train_fuzzy"]
 
@@ -269,7 +270,7 @@ def _run_evaluate(args: argparse.Namespace) -> int:
         Path(args.json).write_text(json.dumps(res, indent=1) + "\n", encoding="utf-8")
         print(f"wrote {args.json}")
     if args.plot:
-        plot_roc(res, Path(args.plot))
+        plot_roc(res, args.plot)
         print(f"wrote {args.plot}")
     return 0
 
@@ -313,5 +314,5 @@ def register(subparsers: Any) -> None:
     _fuzzy_opts(p)
     p.add_argument("--pairs", nargs="*", help="fuzzy input sets, e.g. c_norm,d_norm C,D (default: paper pairs + normalised)")
     p.add_argument("--json", help="write all figures as JSON")
-    p.add_argument("--plot", help="write the ROC plot as PNG")
+    p.add_argument("--plot", type=plot_file, metavar="FILE.png", help="write the ROC plot (PNG, or another image format)")
     p.set_defaults(func=_run_evaluate)

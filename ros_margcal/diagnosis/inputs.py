@@ -60,21 +60,27 @@ def check_options(*, norm: float | None = None, rest_noise: float | None = None,
         raise bad("n_sets", "an integer of at least 2", n_sets)
 
 
+CLOCK_JUMP_S = 86400.0
+"""A forward step between two samples longer than this (a day) is the clock jumping, not a pause: the twin would
+simulate the span in between (a 1e12 s jump asked for 7 TiB); the part after it is moved like one after a step back."""
+
+
 def file_order_times(t: Array) -> tuple[Array, list[int]]:
-    """Times that never decrease for samples in file order whose clock went back (a logger restart).
+    """Times that never decrease for samples in file order whose clock went back (a logger restart) or jumped ahead
+    by more than ``CLOCK_JUMP_S``.
 
     A recording whose clock restarts (its stamps fall back to about 0 halfway) is one sensor's samples in
     the order they were taken: sorting them by time would interleave the parts. Each part after a step
-    back is moved in time to start one typical sample interval (the median forward step) after the end of
-    the part before, as the online calibrator moves its stored samples onto a new time base. Returns the
-    times (``t`` itself when it never decreases) and the samples after which the clock went back.
+    back (or a jump ahead) is moved in time to start one typical sample interval (the median forward step) after
+    the end of the part before, as the online calibrator moves its stored samples onto a new time base. Returns the
+    times (``t`` itself when it never decreases nor jumps) and the samples after which the clock went back or jumped.
     """
     times = np.asarray(t, dtype=np.float64).reshape(-1)
     steps = np.diff(times)
-    back = np.flatnonzero(steps < 0)
+    back = np.flatnonzero((steps < 0) | (steps > CLOCK_JUMP_S))
     if back.size == 0:
         return t, []
-    forward = steps[steps > 0]
+    forward = steps[(steps > 0) & (steps <= CLOCK_JUMP_S)]
     dt = float(np.median(forward)) if forward.size else 0.0
     out = times.copy()
     for i in back:
@@ -95,6 +101,7 @@ def recording_arrays(recording: Any) -> tuple[Array, Array, Array | None, str, l
     except (TypeError, ValueError):  # not numbers: ``twin.build_twin`` says what is wrong with t
         restarts = []
     if restarts:
-        log.warning("the recording's clock goes back %d time(s), first after sample %d: samples taken in file order, "
-                    "the times after each step back continued", len(restarts), restarts[0])
+        log.warning("the recording's clock goes back (or jumps ahead over %g s) %d time(s), first after sample %d: "
+                    "samples taken in file order, the times after each step continued", CLOCK_JUMP_S, len(restarts),
+                    restarts[0])
     return t, raw, temp, str(label), restarts

@@ -165,9 +165,9 @@ def summary(diag: Diagnosis) -> str:
         lines.append(f"stage {name} skipped: {why}")
     if diag.time_restarts:
         k = len(diag.time_restarts)
-        lines.append(f"time: the clock goes back {k} time{'s' if k > 1 else ''} (first after sample "
-                     f"{diag.time_restarts[0]}: a logger restart?); the samples are taken in file order, the times "
-                     "after each step back continued from the part before")
+        lines.append(f"time: the clock goes back (or jumps ahead by more than a day) {k} time{'s' if k > 1 else ''} "
+                     f"(first after sample {diag.time_restarts[0]}: a logger restart?); the samples are taken in file "
+                     "order, the times after each step continued from the part before")
     oc = diag.offset_change
     if oc:
         lines.append(f"offset change at t \u2248 {oc['t']:.1f} s (step {100 * oc['relative_step']:.0f} % of the field "

@@ -256,8 +256,8 @@ def fit_with_prior(points: ArrayLike, prior: Calibration, *, sigma: float | None
     if sigma is not None and not (math.isfinite(sigma) and sigma > 0):
         msg = f"sigma must be a positive finite number, got {sigma!r}"
         raise InputError(msg)
-    if not (math.isfinite(gyro_scale_std) and gyro_scale_std > 0):
-        msg = f"gyro_scale_std must be a positive finite number, got {gyro_scale_std!r}"
+    if not (math.isfinite(gyro_scale_std) and gyro_scale_std >= 1e-9):  # its inverse square enters the information
+        msg = f"gyro_scale_std must be a finite number of at least 1e-9, got {gyro_scale_std!r}"
         raise InputError(msg)
     n0 = float(prior.norm)
     sp = norm_spreads(spread, len(pts), prior.matrix, n0)

@@ -137,7 +137,8 @@ def _heading_gradient(w: Array, d: Array, rot: Array) -> Array:
     ``dh = -W e_i`` for ``b_i``, ``e_j d_j`` for ``w_jj``, ``e_j d_k + e_k d_j`` for ``w_jk``."""
     world = np.einsum("kij,kj->ki", rot, d @ w.T)
     hx, hy = world[:, 0:1], world[:, 1:2]
-    c = (hy * rot[:, 0, :] - hx * rot[:, 1, :]) / (hx * hx + hy * hy)
+    with np.errstate(divide="ignore", invalid="ignore"):  # a vertical field (inclination 90 deg): no heading, NaN
+        c = (hy * rot[:, 0, :] - hx * rot[:, 1, :]) / (hx * hx + hy * hy)  # (the figures read "not determined")
     grad = np.empty((len(d), 9))
     grad[:, :3] = -(c @ w)
     grad[:, 3:6] = c * d

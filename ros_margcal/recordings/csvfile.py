@@ -36,7 +36,7 @@ def read_csv(path: Path, sensor: str | None, order: str) -> Recording:
     try:
         with path.open(newline="", encoding="utf-8-sig") as fh:  # -sig: a spreadsheet export starts with a BOM
             rows = list(csv.reader(fh))
-    except (OSError, UnicodeDecodeError) as exc:
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:  # csv.Error: a cell over the 128 KiB field limit, a NUL
         msg = f"cannot read {path}: {exc}"
         raise RecordingError(msg) from exc
     rows = [r for r in rows if any(c.strip() for c in r)]

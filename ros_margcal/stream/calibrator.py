@@ -74,7 +74,7 @@ from numpy.typing import ArrayLike, NDArray
 from ..coverage.buffer import DirectionBuffer
 from ..coverage.gate import GyroAidedGate
 from ..model.calibration import Calibration
-from ..model.errors import ConfigError
+from ..model.errors import ConfigError, InputError
 from ..validation.shipped import default_validator
 from .change import ChangeDetection
 from .config import STATIC_SPREAD, PipelineConfig, raise_hint, relative_spread
@@ -419,9 +419,17 @@ class SensorCalibrator(ChangeDetection, Evaluation):
                 f"{'; ' + learnt if learnt else ''})")
 
     def status(self, now: float | None = None) -> Status:
-        """The status at message time ``now`` (default: the last sample's time)."""
+        """The status at message time ``now`` (default: the last sample's time).
+
+        Raises:
+            InputError: ``now`` is not a number of seconds (a float's range).
+        """
+        try:
+            t = self._t if now is None else float(now)
+        except (TypeError, ValueError, OverflowError) as exc:
+            msg = f"status(now=...) takes a time in seconds, got {now!r:.40}"
+            raise InputError(msg) from exc
         self._settle_figures()
-        t = self._t if now is None else float(now)
         cal = self._cal
         figures = self._residual_figures()
         res = None if figures is None else figures[0]

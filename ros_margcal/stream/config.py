@@ -379,8 +379,8 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "partial_min_azimuth": _ratio(1.0),
     "gyro_aided": FieldSpec(bool),
     "gyro_samples": FieldSpec(int, 100, 1_000_000),
-    "gyro_block_s": _real(0.0, 60.0, open_lo=True),
-    "gyro_scale_std": _real(0.0, 1.0, open_lo=True),
+    "gyro_block_s": _real(1e-3, 60.0),
+    "gyro_scale_std": _real(1e-6, 1.0),  # a prior sd below a ppm is no MEMS gyro's (and 1e-300 overflowed its inverse)
     "calibrate_into_imu_frame": FieldSpec(bool),
     "early_fit": FieldSpec(bool),
     "early_heading_p95_deg": _real(0.0, 180.0, open_lo=True),

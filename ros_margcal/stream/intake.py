@@ -222,7 +222,7 @@ class Intake:
         lo, hi = (0.0, cfg.max_magnitude) if learning else self.limits
         if not lo < mag <= hi:
             if mag:  # a zero row is counted as one (``zero_rows``), never quoted as a norm
-                self.last_norms["zero" if mag <= lo else "magnitude"] = mag
+                self.last_norms["zero" if mag <= lo else "magnitude"] = mag if mag < math.inf else math.hypot(x, y, z)  # 1e308s
             if self._learnt is None or not self._watch(v if mag else None, ts):
                 self.zero_rows += mag == 0.0
                 return "zero" if mag <= lo else "magnitude"

@@ -135,3 +135,15 @@ def test_a_residual_beyond_the_streams_limit_is_refused(tmp_path: Path, capsys: 
     code, _, err = _run(capsys, "calibrate", str(path), "--unit", "uT", "--set", "max_residual=0.03", "-o", str(out),
                         "--force")
     assert code == 0 and "forced past the guard rails: residual RMS" in load_calibrations(out)["mag"].method
+
+
+def test_fewer_samples_than_the_stream_needs_are_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Ten samples fitted the 9-parameter model with 0.09 % residual at 0.5 % noise (fuzzed): the stream's first check,
+    ``min_points``, refuses it (exit 4, nothing written); 60 samples, the stream's minimum, pass."""
+    out = tmp_path / "cal.yaml"
+    for n, code_wanted in ((10, EXIT_REFUSED), (60, 0)):
+        path = write_csv(tmp_path / f"n{n}_mag.csv", _sphere(n))
+        code, _, err = _run(capsys, "calibrate", str(path), "--unit", "uT", "-o", str(out))
+        assert code == code_wanted and out.exists() == (code == 0), (n, err)
+        if code:
+            assert f"{n} samples < min_points 60: too few to fit the model" in err

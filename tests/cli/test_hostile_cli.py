@@ -293,3 +293,73 @@ def test_rescue_refuses_readings_it_cannot_square() -> None:
     pts[5, 0] = 1e308
     with pytest.raises(InputError, match="beyond 1e"):
         rescue(None, pts, failure="test", model="sym", norm=None, loss="linear", sensor="mag", unit="T", cfg=None)
+
+
+# -- fuzzed (2026-11-27): inputs that gave a traceback, a hang or a calibration from part of a corrupt bag ----------
+
+
+def test_a_csv_cell_beyond_the_csv_field_limit_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A 140 000-character cell raised ``_csv.Error`` out of every command that reads CSV."""
+    path = tmp_path / "big_mag.csv"
+    path.write_text("t,x,y,z\n0,1,1," + "1" * 140_000 + "\n", encoding="utf-8")
+    for command in ("calibrate", "replay"):
+        code, _, err = _run(capsys, command, str(path))
+        assert code == 2 and len(err) == 1 and "field larger than field limit" in err[0], err
+
+
+@pytest.mark.parametrize("name", ["p.txt", "p", "sub"])
+def test_a_plot_file_matplotlib_cannot_write_is_refused_before_the_replay(tmp_path: Path,
+                                                                          capsys: pytest.CaptureFixture[str],
+                                                                          name: str) -> None:
+    """``--plot p.txt`` raised matplotlib's ValueError after the whole replay; a directory is refused too."""
+    (tmp_path / "sub.png").mkdir()
+    path = write_csv(tmp_path / "clean_mag.csv", _sphere(300))
+    target = tmp_path / ("sub.png" if name == "sub" else name)
+    with pytest.raises(SystemExit) as exc:
+        main(["replay", str(path), "-q", "--plot", str(target)])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and "argument --plot" in err and "replaying" not in err, err
+    assert not target.is_file()
+
+
+@pytest.mark.parametrize("argv", [["--pattern", "tumbling", "--rate", "1e-300"],  # hung
+                                  ["--pattern", "tumbling", "--duration", "1e300"],
+                                  ["--pattern", "tumbling", "--rate", "1e6", "--duration", "1e4"],  # 74.5 GiB
+                                  ["--seed", "-1"], ["--noise", "1e300"], ["-n", "100000000"],
+                                  ["--pattern", "smooth", "--jump-at", "3", "--jump-size", "1e300"],
+                                  ["--pattern", "smooth", "--jump-at", "nan"]])
+def test_simulate_refuses_absurd_sizes_rates_and_seeds_in_one_line(tmp_path: Path,
+                                                                   capsys: pytest.CaptureFixture[str],
+                                                                   argv: list[str]) -> None:
+    """Each of these raised deep in numpy (or never returned): now exit 2, one line naming the option, no file."""
+    out = tmp_path / "s.csv"
+    code, _, err = _run(capsys, "simulate", str(out), *argv)
+    assert code == 2 and len(err) == 1 and err[0].startswith("margcal simulate: error: "), err
+    assert any(word in err[0] for word in ("--rate", "--duration", "--seed", "--noise", "-n ", "--jump")), err
+    assert not out.exists()
+
+
+def test_a_bag_that_gives_fewer_messages_than_its_index_is_refused(tmp_path: Path,
+                                                                   capsys: pytest.CaptureFixture[str]) -> None:
+    """A corrupt MCAP (a flipped bit in a message index) gave 2907 of its 3000 messages without an error, and
+    calibrate wrote a fit of them. The same shortfall made here by a stale index (metadata.yaml listing more):
+    calibrate and replay refuse it in one line; the intact bag calibrates."""
+    bag = write_bag(tmp_path / "bag", {"/imu/mag": _sphere(600)}, storage="mcap")
+    code, _, err = _run(capsys, "calibrate", str(bag), "-o", str(tmp_path / "ok.yaml"))
+    assert code == 0, err
+    meta = bag / "metadata.yaml"
+    text = meta.read_text(encoding="utf-8")
+    assert text.count("message_count: 600") >= 1
+    meta.write_text(text.replace("message_count: 600", "message_count: 650"), encoding="utf-8")
+    for argv in (["calibrate", str(bag), "-o", str(tmp_path / "cut.yaml")], ["replay", str(bag), "-q"]):
+        code, _, err = _run(capsys, *argv)
+        assert code == 2 and len(err) == 1 and "gave 600 of the 650 messages" in err[0], err
+    assert not (tmp_path / "cut.yaml").exists()
+
+
+def test_diagnose_benchmark_refuses_a_negative_limit(capsys: pytest.CaptureFixture[str]) -> None:
+    """``--limit -1`` started all 160 recordings."""
+    from ros_margcal.bench.diagnosis import main as bench_main
+    with pytest.raises(SystemExit) as exc:
+        bench_main(["--limit", "-1"])
+    assert exc.value.code == 2 and "--limit must be >= 0" in capsys.readouterr().err

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -138,3 +140,13 @@ def test_the_typical_figure_takes_numpys_percentile_rule() -> None:
         grad = heading_gradient(cal, attitudes(tilt), inclination=60.0)
         errors = np.abs(heading._TYPICAL_Z @ (grad @ (vec * np.sqrt(np.clip(lam, 0.0, None)))).T)
         assert heading_p95_typical(cal, tilt_deg=tilt) == pytest.approx(float(np.median(np.percentile(errors, 95, axis=1))), rel=1e-12)
+
+
+@pytest.mark.parametrize("inclination", [90.0, -90.0])
+def test_a_vertical_field_has_no_heading_and_says_so_without_a_warning(inclination: float) -> None:
+    """At an inclination of 90 deg the field has no horizontal part: every heading figure is NaN ("not determined"),
+    without numpy's divide-by-zero RuntimeWarning leaking to a user's console (``--set heading_inclination_deg=90``)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert np.isnan(heading_p95(_cal(), inclination=inclination))
+        assert np.isnan(heading_p95_typical(_cal(), tilt_deg=30.0, inclination=inclination))

@@ -95,6 +95,8 @@ def test_none_is_refused_where_not_optional(name: str) -> None:
     ({"f_scale_rel": -1.0}, "f_scale_rel"),
     ({"f_scale_rel": 1e-300}, "f_scale_rel"),
     ({"max_residual": 1e-300}, "max_residual"),
+    ({"gyro_scale_std": 1e-300}, "gyro_scale_std"),  # passed, then its inverse square overflowed in the mounting fit
+    ({"gyro_block_s": 1e-300}, "gyro_block_s"),
     ({"method": "newton"}, "method"),
     ({"loss": "l3"}, "loss"),
     ({"method": "sphere"}, "method"),  # cannot fit the sym model

@@ -16,6 +16,7 @@ import margcal_independent_generator as gen  # loaded once by tests/conftest.py
 import numpy as np
 import pytest
 
+from ros_margcal.model.errors import InputError
 from ros_margcal.sim import simulation as sim
 from ros_margcal.sim.motion import HardIronJump
 from ros_margcal.stream.calibrator import PipelineConfig, SensorCalibrator
@@ -173,3 +174,22 @@ def test_most_samples_beyond_the_threshold_stay_in_the_residual(sim_tumble: sim.
         cal.push(ti, v)
     res = cal.residual()
     assert res is not None and res > 0.3
+
+
+@pytest.mark.parametrize("now", ["x", 10**400, [1.0], object()])
+def test_a_status_at_a_time_that_is_no_number_is_an_input_error(now: object) -> None:
+    """``status(now=...)`` raised float()'s bare ValueError / OverflowError; a NaN or a number still reads."""
+    cal = SensorCalibrator("mag", PipelineConfig.for_sensor("mag"))
+    cal.push(0.0, [2e-5, 3e-5, 1e-5])
+    with pytest.raises(InputError, match="takes a time in seconds"):
+        cal.status(now=now)
+    assert cal.status(now=3).t == 3.0 and np.isnan(cal.status(now=float("nan")).t)
+
+
+def test_a_reading_of_1e308s_is_quoted_with_its_size_not_as_infinity() -> None:
+    """Components of 1e308 overflow the norm's squares: dropped as before, but the status quoted "last |v| = inf"."""
+    cal = SensorCalibrator("mag", PipelineConfig.for_sensor("mag"))
+    for i in range(5):
+        cal.push(0.02 * i, [1e308, 1e308, 1e308])
+    msg = cal.status().message
+    assert cal.dropped["magnitude"] == 5 and "last |v| = 1.732e+308 >" in msg, msg
