@@ -172,6 +172,10 @@ FIX_MOVE_KM = 50.0
 """A GPS fix this far from the position in use moves the field model there (the field changes ~0.1 % per 50 km)."""
 OTHER_FRAME_S = 10.0
 """The status flags messages of another frame_id on a sensor's topic for this long after the last one, s."""
+MAX_OTHER_FRAMES = 8
+"""At most this many other frame_ids are named in the status (each up to ``FRAME_SHOWN`` characters); messages of
+further ones are counted only: a frame_id changing on every message grew the status to 4 MB and the node by 50 MB."""
+FRAME_SHOWN = 40
 
 
 def _fdesc(lo: float, hi: float, text: str, read_only: bool = False) -> ParameterDescriptor:
@@ -203,6 +207,28 @@ def _publishable(v: Any, limits: tuple[float, float]) -> bool:
     return limits[0] < n <= limits[1]  # False for NaN and Inf
 
 
+def _shown(frame_id: str) -> str:
+    """A frame_id for the status: quoted, cut to ``FRAME_SHOWN`` characters."""
+    return repr(frame_id) if len(frame_id) <= FRAME_SHOWN else repr(frame_id[:FRAME_SHOWN]) + f"... ({len(frame_id)} chars)"
+
+
+def _calibration_path(value: str, node_name: str) -> Path | None:
+    """The file ``calibration_file`` names (``auto``: ``~/.ros/margcal/<node>.yaml``; empty: None).
+
+    Raises:
+        ConfigError: a ``~user`` of no user, or no home directory (pathlib's RuntimeError crashed ``~/save``).
+    """
+    if not value:
+        return None
+    try:
+        if value == "auto":
+            return Path.home() / ".ros" / "margcal" / (node_name.strip("/").replace("/", ".") + ".yaml")
+        return Path(value).expanduser()
+    except RuntimeError as exc:
+        msg = f"calibration_file {value!r}: {exc}"
+        raise ConfigError(msg) from exc
+
+
 def _implausible(cal: Calibration, sensor: str, cfg: PipelineConfig) -> str:
     """Why a calibration read from a file does not fit this node's sensor (empty when it does): another sensor,
     another unit (a file of ``margcal calibrate --unit uT`` would publish fields 1e6 too large), a field norm
@@ -230,8 +256,10 @@ class _Traffic:
         self.last_rx: float | None = None
         self.times: deque[float] = deque(maxlen=CALLBACK_TIMES)
         self.frame: str | None = None  # the frame_id the sensor is calibrated in: the first one seen
-        self.other_frames: dict[str, int] = {}  # messages of other frame_ids, ignored
+        self.other_frames: dict[str, int] = {}  # messages of other frame_ids, ignored (MAX_OTHER_FRAMES named)
+        self.other_more = 0  # ... and of further frame_ids, counted only
         self.other_frame_rx = -math.inf
+        self.reset_base = 0  # messages received before the last ~/reset (the worker's counts start again there)
         self._counts: deque[tuple[float, int]] = deque()
         self._drops: deque[tuple[float, int, dict[str, int]]] = deque()
 
@@ -480,6 +508,11 @@ class MargCalNode(Node):
 
     def _validate_parameters(self, params: list[Parameter]) -> SetParametersResult:
         changed = {p.name: p.value for p in params}
+        if "calibration_file" in changed:
+            try:
+                _calibration_path(str(changed["calibration_file"]), self.get_fully_qualified_name())
+            except ConfigError as exc:
+                return SetParametersResult(successful=False, reason=str(exc))
         for s in self._configs:
             if any(k.startswith(f"{s}.") for k in changed):
                 try:
@@ -527,7 +560,11 @@ class MargCalNode(Node):
         if traffic.frame is None:
             traffic.frame = frame_id
         elif frame_id != traffic.frame:  # a second sensor on the topic: pooled, it would spoil both calibrations
-            traffic.other_frames[frame_id] = traffic.other_frames.get(frame_id, 0) + 1
+            others = traffic.other_frames
+            if frame_id in others or len(others) < MAX_OTHER_FRAMES:
+                others[frame_id] = others.get(frame_id, 0) + 1
+            else:
+                traffic.other_more += 1
             traffic.other_frame_rx = now
             return
         src = self._stamps[s]
@@ -602,10 +639,13 @@ class MargCalNode(Node):
     # -- persistence ------------------------------------------------------------------------------
 
     def _path(self) -> Path | None:
-        p = str(self.get_parameter("calibration_file").value)
-        if p == "auto":
-            return Path.home() / ".ros" / "margcal" / (self.get_fully_qualified_name().strip("/").replace("/", ".") + ".yaml")
-        return Path(p).expanduser() if p else None
+        """The calibration file; None when ``calibration_file`` is empty, or names a home that does not exist
+        (logged: persistence is off; a parameter set at run time is refused instead, ``_validate_parameters``)."""
+        try:
+            return _calibration_path(str(self.get_parameter("calibration_file").value), self.get_fully_qualified_name())
+        except ConfigError as exc:
+            self.get_logger().error(f"{exc}: persistence is off")
+            return None
 
     def _set_aside(self) -> str:
         """After a reset: move the calibration file to ``<file>.reset`` so a restart starts uncalibrated too."""
@@ -666,7 +706,7 @@ class MargCalNode(Node):
         path = self._path()
         cals = {s: c for s, c in self._calibration.items() if c is not None}
         if path is None:
-            return False, "calibration_file is empty: persistence is off"
+            return False, "calibration_file is empty (or names no home directory): persistence is off"
         if not cals:
             return False, "nothing to save: no sensor is calibrated"
         try:
@@ -689,8 +729,10 @@ class MargCalNode(Node):
     async def _srv_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         for s in self._calibration:
             self._calibration[s] = None  # nothing more is published with the old calibration
-        for traffic in self._traffic.values():
-            traffic.frame, traffic.other_frames = None, {}
+        for s, traffic in self._traffic.items():
+            traffic.frame, traffic.other_frames, traffic.other_more = None, {}, 0
+            # the worker forgets what it has seen; what is still queued here reaches it after the reset
+            traffic.reset_base = traffic.received - sum(1 for b in self._batch if b[0] == s)
         aside = self._set_aside()
         response = await self._ask_worker("reset", response)
         response.message += aside
@@ -730,16 +772,19 @@ class MargCalNode(Node):
             warn = traffic.dropping(now, st)
             if now - traffic.other_frame_rx <= OTHER_FRAME_S:
                 topic = "imu/mag" if s == "mag" else "imu/data_raw"
-                others = ", ".join(f"{f!r} ({n} messages)" for f, n in sorted(traffic.other_frames.items()))
+                others = ", ".join(f"{_shown(f)} ({n} messages)" for f, n in sorted(traffic.other_frames.items()))
+                if traffic.other_more:
+                    others += f" and {traffic.other_more} messages of further frames"
                 warn = "; ".join(x for x in (warn, f"{topic} carries other frames than {traffic.frame!r}: {others}, "
                                              "ignored (one sensor per topic)") if x)
             if warn:
                 st = replace(st, level=max(st.level, Level.WARN), message=f"{warn}; {st.message}")
             msg = status_to_diagnostic(st, DiagnosticStatus, KeyValue, level_encoder=_level_bytes,
                                        hardware_id=traffic.frame or "")
-            ignored = sum(traffic.other_frames.values())
+            ignored = sum(traffic.other_frames.values()) + traffic.other_more
+            backlog = traffic.received - traffic.reset_base - ignored - st.samples_seen
             extra = [*traffic.values(traffic.tick(now)), *self._field_values(s), ("ignored_other_frames", str(ignored)),
-                     ("worker_backlog", str(max(traffic.received - ignored - st.samples_seen, 0))),
+                     ("worker_backlog", str(max(backlog, 0))),
                      ("worker_restarts", str(self._worker.restarts))]
             msg.values.extend(KeyValue(key=k, value=v) for k, v in extra)
             arr.status.append(msg)
