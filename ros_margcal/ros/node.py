@@ -23,7 +23,8 @@ figures (``PipelineConfig.at_position``); the worker gets the new options (``con
 ``field_model`` says which field: 'field from WMM2025 at 48.1°N 11.6°E: 48.8 µT, inclination 64.4° (2026.90)'.
 
 Services (std_srvs/Trigger): ``~/reset`` (forget samples and calibrations), ``~/save`` (write the
-calibration file now), ``~/refit`` (validate and fit now; the validator and guard rails still decide).
+calibration file now), ``~/refit`` (validate and fit now; the validator and guard rails still decide); each keeps
+up to ``SERVICE_QUEUE`` requests queued, so a burst of calls is answered in full.
 
 Threads and processes: a fit holds the interpreter (the GIL) for tens of milliseconds to seconds, so no
 thread of this process may run one. The sample callbacks only convert the message, choose its time,
@@ -172,6 +173,8 @@ FIX_MOVE_KM = 50.0
 """A GPS fix this far from the position in use moves the field model there (the field changes ~0.1 % per 50 km)."""
 OTHER_FRAME_S = 10.0
 """The status flags messages of another frame_id on a sensor's topic for this long after the last one, s."""
+SERVICE_QUEUE = 100
+"""Requests a service keeps queued (the default profile's 10 lost the rest of a burst of calls)."""
 MAX_OTHER_FRAMES = 8
 """At most this many other frame_ids are named in the status (each up to ``FRAME_SHOWN`` characters); messages of
 further ones are counted only: a frame_id changing on every message grew the status to 4 MB and the node by 50 MB."""
@@ -370,9 +373,12 @@ class MargCalNode(Node):
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         # a group of their own: a service awaiting the worker keeps its group busy, never the samples' default group
         services = ReentrantCallbackGroup()
-        self.create_service(Trigger, "~/reset", self._srv_reset, callback_group=services)
-        self.create_service(Trigger, "~/save", self._srv_save, callback_group=services)
-        self.create_service(Trigger, "~/refit", self._srv_refit, callback_group=services)
+        # the services' default request queue keeps 10: of 60 calls at once 10 were answered, the rest never (fuzzed)
+        calls = QoSProfile(depth=SERVICE_QUEUE, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE,
+                           durability=DurabilityPolicy.VOLATILE)
+        self.create_service(Trigger, "~/reset", self._srv_reset, qos_profile=calls, callback_group=services)
+        self.create_service(Trigger, "~/save", self._srv_save, qos_profile=calls, callback_group=services)
+        self.create_service(Trigger, "~/refit", self._srv_refit, qos_profile=calls, callback_group=services)
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
         self.create_timer(float(self.get_parameter("status_period_s").value), self._publish_status)

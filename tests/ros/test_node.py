@@ -497,6 +497,15 @@ def test_the_backlog_is_zero_again_after_a_reset(harness: Harness, stream: sim.R
     assert kv["received"] == "500" and kv["samples_seen"] == "200" and kv["worker_backlog"] == "0", kv
 
 
+def test_sixty_service_calls_at_once_are_all_answered(harness: Harness) -> None:
+    """Fuzzed: of 60 ~/save calls made at once 10-30 were answered (the default request queue of 10); every one is."""
+    clients = [harness.peer.create_client(Trigger, "/margcal/save") for _ in range(60)]
+    assert harness.spin_until(lambda: all(c.service_is_ready() for c in clients), 5.0)
+    futures = [c.call_async(Trigger.Request()) for c in clients]
+    assert harness.spin_until(lambda: all(f.done() for f in futures), 15.0), sum(f.done() for f in futures)
+    assert all(not f.result().success and "nothing to save" in f.result().message for f in futures)
+
+
 def test_a_calibration_file_under_a_home_that_does_not_exist_is_refused_not_fatal(harness: Harness) -> None:
     """Fuzzed: calibration_file '~nosuchuser/cal.yaml' was accepted, and ~/save then killed the node (pathlib's
     RuntimeError through the executor). Set at run time it is refused; the node answers ~/save as before."""
