@@ -162,25 +162,24 @@ MAX_SAMPLES = 10_000_000
 def _check_sizes(args: argparse.Namespace) -> None:
     """Refuse absurd sizes, rates, noise and seeds at once, in the options' own words (not a numpy error, an
     allocation of terabytes or a loop that never ends deep inside the simulator)."""
-    bad = ConfigError
     if args.seed < 0:
-        raise bad(f"--seed must be a non-negative integer, got {args.seed}")
+        raise ConfigError(f"--seed must be a non-negative integer, got {args.seed}")
     if not (math.isfinite(args.duration) and args.duration > 0):
-        raise bad(f"--duration must be a positive number of seconds, got {args.duration}")
+        raise ConfigError(f"--duration must be a positive number of seconds, got {args.duration}")
     if args.rate is not None and not (math.isfinite(args.rate) and 1e-3 <= args.rate <= 1e6):
-        raise bad(f"--rate must be in [0.001, 1e6] Hz, got {args.rate}")
+        raise ConfigError(f"--rate must be in [0.001, 1e6] Hz, got {args.rate}")
     if args.noise is not None and not (math.isfinite(args.noise) and 0.0 <= args.noise < 1.0):
-        raise bad(f"--noise must be a fraction of the norm in [0, 1), got {args.noise}")
+        raise ConfigError(f"--noise must be a fraction of the norm in [0, 1), got {args.noise}")
     if not (math.isfinite(args.jump_size) and 0.0 <= args.jump_size <= 10.0):
-        raise bad(f"--jump-size must be a fraction of the field norm in [0, 10], got {args.jump_size}")
+        raise ConfigError(f"--jump-size must be a fraction of the field norm in [0, 10], got {args.jump_size}")
     if args.jump_at is not None and not math.isfinite(args.jump_at):
-        raise bad(f"--jump-at must be a finite time in seconds, got {args.jump_at}")
+        raise ConfigError(f"--jump-at must be a finite time in seconds, got {args.jump_at}")
     if args.pattern in PATTERNS:
         return
     rate = args.rate or (50.0 if args.sensor == "mag" else 100.0)
     n = args.duration * rate
     if not 2.0 <= n <= MAX_SAMPLES:
-        raise bad(f"--duration x --rate gives {n:.3g} samples; a time series needs 2 to {MAX_SAMPLES:.0e}")
+        raise ConfigError(f"--duration x --rate gives {n:.3g} samples; a time series needs 2 to {MAX_SAMPLES:.0e}")
 
 
 def run(args: argparse.Namespace) -> int:

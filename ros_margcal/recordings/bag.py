@@ -176,16 +176,15 @@ def iter_bag_messages(path: str | os.PathLike[str], *, topics: set[str] | None =
             raise RecordingError(msg)
         store = _typestore()
         messages = reader.messages(connections=conns)
-        read = dict.fromkeys(range(len(conns)), 0)
-        index = {c.id: i for i, c in enumerate(conns)}
+        read = {c.id: 0 for c in conns}
         while True:
             try:  # a corrupt storage file fails here (apsw.CorruptError, a zstd error, a CDR error): the reader's fault
                 conn, log_ns, data = next(messages)
                 item = _convert(store.deserialize_cdr(data, conn.msgtype), _KIND_OF_TYPE[conn.msgtype], log_ns, conn.topic)
-                read[index[conn.id]] += 1
+                read[conn.id] += 1
             except StopIteration:
-                for i, n in read.items():  # a stream takes what arrives, as the node does: said, not refused
-                    why = _short(p, conns[i], n)
+                for c in conns:  # a stream takes what arrives, as the node does: said, not refused
+                    why = _short(p, c, read[c.id])
                     if why:
                         log.warning("%s; the rest was replayed", why)
                 return
