@@ -175,6 +175,8 @@ def _check_sizes(args: argparse.Namespace) -> None:
     if args.jump_at is not None and not math.isfinite(args.jump_at):
         raise ConfigError(f"--jump-at must be a finite time in seconds, got {args.jump_at}")
     if args.pattern in PATTERNS:
+        if args.n > MAX_SAMPLES:
+            raise ConfigError(f"-n must be at most {MAX_SAMPLES:.0e} samples, got {args.n}")
         return
     rate = args.rate or (50.0 if args.sensor == "mag" else 100.0)
     n = args.duration * rate
@@ -185,9 +187,6 @@ def _check_sizes(args: argparse.Namespace) -> None:
 def run(args: argparse.Namespace) -> int:
     """Simulate and write; returns the exit code."""
     _check_sizes(args)
-    if args.pattern in PATTERNS and args.n > MAX_SAMPLES:
-        msg = f"-n must be at most {MAX_SAMPLES:.0e} samples, got {args.n}"
-        raise ConfigError(msg)
     for name, m in args.effect:
         if not (math.isfinite(m) and m >= 0):
             msg = f"effect {name} magnitude must be >= 0, got {m}"
