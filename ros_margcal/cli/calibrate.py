@@ -66,7 +66,7 @@ from .fit_rescue import (
     screen,
 )
 from .position import add_position_args, field_line, position_options, radius_note
-from .raw_units import prepare
+from .raw_units import drop_saturated, prepare
 from .set_option import SET_HELP, parse_sets, sensor_options
 
 __all__ = ["CALIBRATE_OPTIONS", "NORM_RATIO", "register", "run", "still_samples"]
@@ -82,8 +82,9 @@ products over- or underflow."""
 
 CALIBRATE_OPTIONS = frozenset({"max_iter", "gate_window_s", "gate_cv_threshold", "max_residual", "max_offset_ratio",
                                "max_offset", "gain_min", "gain_max", "norm_min", "norm_max", "max_parameter_std",
-                               "max_heading_p95_deg"})
-"""The ``--set`` options calibrate uses: the fit's iterations, the accelerometer's gate, the guard rails."""
+                               "max_heading_p95_deg", "drop_saturated"})
+"""The ``--set`` options calibrate uses: the fit's iterations, the accelerometer's gate, the guard rails, the rows on
+a saturated axis (``drop_saturated``)."""
 
 
 def register(subparsers: Any) -> None:
@@ -288,11 +289,14 @@ def run(args: argparse.Namespace) -> int:
     position = position_options(args)
     used = {k: v for k, v in overrides.items() if not (position and k == "reference_norm")}  # calibrate: --norm only
     cfg = config_for(sensor, unit, **used, **position)
+    n_clean = len(rec)  # after the all-zero rows
+    if cfg.drop_saturated:
+        rec = drop_saturated(rec)
     if cfg.field_model() is not None:
         print(field_line(cfg, norm_given=args.norm is not None))
     points, times, dropped = _points(rec, args, cfg)
-    if len(rec) < n_read:
-        dropped = {"zero": n_read - len(rec), **dropped}
+    counts = {"zero": n_read - n_clean, "saturated": n_clean - len(rec)}
+    dropped = {**{k: n for k, n in counts.items() if n}, **dropped}
     extra: dict[str, Any] = {"dropped": dropped} if dropped else {}
     model = args.model or _DEFAULT_MODEL.get(args.method, "sym")
     prior_norm, fixed = _prior_norm(args, cfg)

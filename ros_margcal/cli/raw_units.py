@@ -28,6 +28,7 @@ from numpy.typing import NDArray
 from ..model.errors import ConfigError
 from ..recordings.recording import Recording, drop_zero_rows
 from ..stream.config import STATIC_SPREAD, PipelineConfig
+from ..stream.saturation import on_rails
 from ..stream.units import unit_scale
 from .fit_rescue import MAX_READING
 
@@ -174,3 +175,14 @@ def prepare(rec: Recording, sensor: str | None, unit: str | None, where: str) ->
     raw_unit = resolve_unit(name, rec.raw, unit, default=rec.unit or None, where=f"in {where}")
     rec.sensor, rec.unit = name, raw_unit
     return rec, name, raw_unit
+
+
+def drop_saturated(rec: Recording) -> Recording:
+    """``rec`` (in time order, its unit resolved) without its rows on a saturated axis (``stream.saturation``, all of
+    them: a batch has the whole recording), said on stderr: a fit's input, not the diagnosis's (it names clipping)."""
+    pinned, watch = on_rails(rec.raw) if len(rec) else (np.zeros(0, dtype=bool), None)
+    n = int(pinned.sum())
+    if not n or watch is None:
+        return rec
+    print(f"{watch.describe(rec.unit, n)} ({n} of {len(rec)} rows)", file=sys.stderr)
+    return rec.slice(~pinned)

@@ -37,6 +37,7 @@ import bisect
 import logging
 import math
 from collections import deque
+from collections.abc import Callable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -445,11 +446,29 @@ class DirectionBuffer:
             return
         samples = [(self._t[s], self._x[s], self._y[s], self._z[s]) for s in self._live()]
         self._center = new_center
-        counters = (self._offered, self._kept, self._refused, self._invalid, self._evicted, self._rebins + 1)
+        self._rebin(samples, rebins=1)
+
+    def discard(self, drop: Callable[[float, float, float], bool]) -> int:
+        """Remove the samples for which ``drop(x, y, z)`` is true (counted as evicted; the rest re-binned as they
+        were) and return how many: samples found bad after they went in (a saturated axis, ``stream.saturation``)."""
+        live = [(self._t[s], self._x[s], self._y[s], self._z[s]) for s in self._live()]
+        keep = [item for item in live if not drop(item[1], item[2], item[3])]
+        n = len(live) - len(keep)
+        if n:
+            self._cache = None
+            self._rebin(keep, rebins=0)
+            self._evicted += n
+        return n
+
+    def _rebin(self, samples: list[tuple[float, float, float, float]], rebins: int) -> None:
+        """Empty the buffer and insert ``samples`` (time, x, y, z in insertion order) about the current centre; the
+        counters are kept (``rebins`` added)."""
+        counters = (self._offered, self._kept, self._refused, self._invalid, self._evicted, self._rebins + rebins)
         runs = self._hull_runs
         self.clear()
         self._hull_runs = runs
         self._offered, self._kept, self._refused, self._invalid, self._evicted, self._rebins = counters
+        new_center = self._center
         cx, cy, cz = new_center
         by_bin: dict[int, list[tuple[float, float, float, float]]] = {}
         for t, x, y, z in samples:

@@ -122,6 +122,7 @@ _FLOAT_PARAMS: dict[str, tuple[float, float, str]] = {
                                         "(a sensor mounted tilted)"),
 }
 _BOOL_PARAMS: dict[str, str] = {
+    "drop_saturated": "drop readings on an axis pinned at the end of the sensor's range while it turns (counted, named)",
     "partial_fit": "fit what the motion makes observable (a ring or band) when the full validator refuses",
     "early_fit": "publish a first MAP fit on rich motion once its predicted heading error is small",
     "gyro_aided": "magnetometer: the Imu angular rate (same frame_id, or the only Imu frame; stamps within 20 ms) joins "

@@ -142,6 +142,7 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         self._recent_r: deque[float] = deque(maxlen=cfg.recent_samples)
         self._intake = Intake(cfg, use_gyro=self._gate is not None or cfg.gyro_aided)
         self._spikes = SpikeFilter()
+        self._rails_found = 0  # the intake's rails seen (_rail_found)
         self.dropped = self._intake.dropped  # the intake's reasons and "outlier", one dict
         self.passed = 0
         self.kept = 0
@@ -252,11 +253,15 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         intake = self._intake
         got = intake.take(t, xyz, gyro)
         if got is None:
+            if intake.rails.found != self._rails_found:  # the sample that found a rail is on it: dropped
+                self._rail_found()
             return []
         t, (x, y, z), g = got
         events = [] if intake.new_base_step is None else self._new_time_base(t, intake.new_base_step)
         if intake.relearnt_now:
             self._limits_relearnt(t)
+        if intake.rails.found != self._rails_found:
+            self._rail_found()
         self._t = t
         if self._gate is None:  # the magnetometer: held back while it may be a spike (intake.SpikeFilter)
             spikes = self._spikes
@@ -312,6 +317,26 @@ class SensorCalibrator(ChangeDetection, Evaluation):
                f"({self.config.new_time_base_after} consistent samples); the calibration and buffer are kept")
         log.debug("%s: %s", self.sensor, msg)
         return [*events, Event(EventKind.TIME_BASE, t, self.sensor, msg)]
+
+    def _rail_found(self) -> None:
+        """The intake found a saturated axis (``saturation``): the samples on it that went in before (the run that
+        found it) leave the buffer and the recent samples; before a calibration the series, whose block means hold
+        them, starts again (a rail shows in the first turns, and the first fits are made of those samples)."""
+        rails = self._intake.rails
+        self._rails_found = rails.found
+        gone = self._buffer.discard(rails.on_rail)
+        keep = [not rails.on_rail(*v) for v in self._recent_v]
+        if not all(keep):
+            gone = max(gone, keep.count(False))
+            for name in ("_recent_t", "_recent_v", "_recent_r"):
+                old = getattr(self, name)
+                if len(old) == len(keep):  # they are appended together (never raise in push for a deque out of step)
+                    setattr(self, name, deque((a for a, k in zip(old, keep, strict=True) if k), maxlen=old.maxlen))
+        if self._cal is None:
+            self._series.clear()
+            self._series_acc = [0.0, 0.0, 0.0, 0.0, 0.0]
+        log.warning("%s: saturated: %s (readings pinned there while the sensor turned): dropped from now on, and %d "
+                    "that went in before taken out", self.sensor, rails.where(self.config.unit), gone)
 
     def _limits_relearnt(self, t: float) -> None:
         """The intake relearnt its magnitude limits (a unit without a known scale): before a calibration, what
@@ -469,6 +494,8 @@ class SensorCalibrator(ChangeDetection, Evaluation):
                 msg += f"; {self._intake.drop_summary()}"
         if self._intake.learnt:
             msg += f"; {self._intake.learnt}"
+        if self.dropped["saturated"]:
+            msg += f"; {self._intake.rails.describe(self.config.unit, self.dropped['saturated'])}"
         msg += self._partial_message()
         if self._time_base_note:
             msg += f"; {self._time_base_note}"

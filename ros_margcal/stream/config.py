@@ -97,6 +97,7 @@ class PipelineConfig:
     max_magnitude: float = 1.4e-3
     learn_magnitude_samples: int = 0
     max_rate_hz: float = 2000.0
+    drop_saturated: bool = True  # drop samples on an axis pinned at the end of the range (stream/saturation.py)
     max_stamp_gap_s: float = 60.0  # a forward stamp step beyond this is a jump: a glitch, or a new time base
     new_time_base_after: int = 5  # consecutive consistent samples off the current time base that make a new one
     # buffer and validator
@@ -342,6 +343,7 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "max_magnitude": _real(_MAGNITUDE_MIN, _MAGNITUDE_MAX),
     "learn_magnitude_samples": FieldSpec(int, 0, 10_000),
     "max_rate_hz": _real(1e-3, 1e6),
+    "drop_saturated": FieldSpec(bool),
     "n_bins": FieldSpec(int, 6, 10_000),
     "per_bin": FieldSpec(int, 1, 1_000),
     "min_points": FieldSpec(int, 4, MAX_BUFFERED),

@@ -25,6 +25,8 @@ objects (the node and the replay hand over what a message or a file held):
   and is taken. A lone glitch (one sample an hour or 1e9 s ahead, or a late one) is dropped once and
   the samples after it go on as before. A restart thus costs ``new_time_base_after - 1`` samples.
 - ``burst``: closer than ``1 / max_rate_hz`` to the last taken sample.
+- ``saturated``: on an axis pinned at the end of the sensor's range while it turns (``saturation.RailWatch``,
+  ``rails``), which the status names; ``drop_saturated`` false keeps them.
 - The gyro (the accelerometer's gate; the magnetometer's gyro-aided fit, ``gyro_aided``) is optional: one
   that is malformed, not finite or beyond ``MAX_GYRO_RAD_S`` is treated as absent for that sample (counted
   in ``gyro_ignored``), so a broken gyro costs the gate's motion check or the fit's rate, never the samples.
@@ -54,12 +56,13 @@ from typing import Any
 import numpy as np
 
 from .config import STATIC_SPREAD, PipelineConfig, raise_hint, relative_spread
+from .saturation import RailWatch
 from .units import LEARN_HIGH, LEARN_LOW, RELEARN_FACTOR, RELEARN_SHARE
 
 __all__ = ["DROP_REASONS", "MAX_GYRO_RAD_S", "MAX_STAMP_S", "Intake", "Sample", "SpikeFilter"]
 
 DROP_REASONS = ("wrong_size", "bad_stamp", "nonfinite", "zero", "magnitude", "repeated_stamp", "backwards_stamp",
-                "stamp_jump", "burst", "spike", "outlier")
+                "stamp_jump", "burst", "saturated", "spike", "outlier")
 """Why a sample was dropped (the keys of ``dropped``); ``spike`` (``SpikeFilter``) and ``outlier`` are the calibrator's."""
 
 MAX_STAMP_S = 1e12
@@ -155,6 +158,8 @@ class Intake:
         """Set by ``take`` when this sample made the intake relearn its limits (and is within the new ones)."""
         self.expected: float | None = None
         """The current calibration's typical raw norm (set by the calibrator): learnt limits that hold it are kept."""
+        self.rails = RailWatch()
+        """Saturated axes found in the samples that passed the checks before it (``saturated``)."""
 
     @property
     def limits(self) -> tuple[float, float]:
@@ -234,6 +239,8 @@ class Intake:
         if ts - self._last_taken_t < cfg.min_period_s:
             return "burst"
         self._last_taken_t = ts
+        if cfg.drop_saturated and self.rails.push(x, y, z):
+            return "saturated"
         if learning:
             self._learning.append(mag)
             if len(self._learning) >= cfg.learn_magnitude_samples:

@@ -449,6 +449,23 @@ def test_status_leaves_ok_while_samples_are_dropped(harness: Harness, stream: si
     assert len(harness.calibrated) == before
 
 
+def test_a_saturated_axis_is_dropped_named_and_the_rest_calibrated(harness: Harness, stream: sim.Recording) -> None:
+    """The magnetometer's x axis clipped at 60 % of its reach (a range too small for the field plus hard iron): the
+    node drops the pinned samples, its status names the axis and value, and the calibration is the sensor's."""
+    raw = np.array(stream.raw, dtype=np.float64)
+    lim = 0.6 * np.abs(raw[:, 0]).max()
+    raw[:, 0] = np.clip(raw[:, 0], -lim, lim)
+    assert np.mean(np.abs(raw[:, 0]) == lim) > 0.1
+    harness.publish(replace(stream, raw=raw))
+    assert harness.spin_until(lambda: harness.node.calibrations["mag"] is not None, 10.0)
+    harness.status.clear()
+    assert harness.spin_until(lambda: bool(harness.status) and "dropped as saturated" in harness.last_status().message,
+                              5.0)
+    assert "dropped as saturated: x at" in harness.last_status().message
+    cal, truth = harness.node.calibrations["mag"], stream.truth
+    assert np.linalg.norm(cal.offset - truth.offset) < 0.02 * truth.norm
+
+
 def test_a_second_frame_on_the_topic_is_ignored_and_flagged(harness: Harness, stream: sim.Recording) -> None:
     """Two magnetometers on imu/mag told apart by frame_id: the first frame is calibrated, the other is neither
     pooled nor published, and the status names it."""
