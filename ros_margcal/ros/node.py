@@ -7,7 +7,8 @@ Topics (defaults, all remappable; REP-145 names, REP-103 units):
   ``queue_depth`` messages instead of its 5 (a burst of a serial driver, a pause of the interpreter);
 - publishes, reliable (the system default, REP-2003 for publishers, so default-QoS and sensor-data
   subscribers both receive), ``imu_calibrated/data_raw`` and ``imu_calibrated/mag`` (header
-  unchanged, covariance ``W Σ Wᵀ``; a sample with a non-finite or zero vector is not published),
+  unchanged, covariance ``W Σ Wᵀ``; a sample with a non-finite or zero vector, or on a saturated axis
+  (``stream.saturation``), is not published),
   ``/calib/status`` (diagnostic_msgs/DiagnosticArray, one status per sensor, every ``status_period_s``,
   with the rate received and the callback times; also on ``/diagnostics`` when ``publish_diagnostics``),
   and the current calibration on ``/calib/mag`` and ``/calib/accel`` (std_msgs/String with the
@@ -81,6 +82,7 @@ from ..model.calibration_file import load_calibrations, save_calibrations
 from ..model.errors import CalibrationFileError, ConfigError
 from ..model.geomag import distance_km, field_at
 from ..stream.config import PipelineConfig, plausibility
+from ..stream.saturation import RailWatch
 from ..stream.status import EventKind, Level, State, Status
 from ..stream.units import unit_scale
 from ..validation.shipped import load_validator
@@ -332,6 +334,7 @@ class MargCalNode(Node):
         self._stamps = {"mag": StampSource(mode, "imu/mag"), "accel": StampSource(mode, "imu/data_raw")}
         self._traffic = {s: _Traffic() for s in SENSORS}
         self._limits: dict[str, tuple[float, float]] = {}
+        self._rails = {s: RailWatch() for s in SENSORS}  # saturated axes, for what is published (_pinned)
         self._units: dict[str, str] = {}
         self._batch: list[tuple[Any, ...]] = []
         self._calibration: dict[str, Calibration | None] = {}
@@ -543,7 +546,7 @@ class MargCalNode(Node):
         self._take("mag", t, v, None, msg.header.frame_id)
         cal = self._calibration["mag"]
         publish = cal is not None or self._publish_raw
-        if publish and _publishable(v, self._limits["mag"]) and self._frame_ok("mag", msg):
+        if _publishable(v, self._limits["mag"]) and self._frame_ok("mag", msg) and not self._pinned("mag", v) and publish:
             self._pub_mag.publish(calibrate_mag(msg, cal))
         self._traffic["mag"].times.append(time.perf_counter() - t0)
 
@@ -554,7 +557,8 @@ class MargCalNode(Node):
         if "accel" in self._configs:
             cal = self._calibration["accel"]
             publish = cal is not None or self._publish_raw
-            if publish and _publishable(acc, self._limits["accel"]) and self._frame_ok("accel", msg):
+            if (_publishable(acc, self._limits["accel"]) and self._frame_ok("accel", msg)
+                    and not self._pinned("accel", acc) and publish):
                 self._pub_imu.publish(calibrate_imu(msg, cal))
         self._traffic["accel"].times.append(time.perf_counter() - t0)
 
@@ -580,6 +584,11 @@ class MargCalNode(Node):
             self.get_logger().warning(src.pop_warning() or "")
         g = (math.nan,) * 3 if gyro is None else (float(gyro[0]), float(gyro[1]), float(gyro[2]))
         self._batch.append((s, t, float(v[0]), float(v[1]), float(v[2]), *g, frame_id, now))
+
+    def _pinned(self, s: str, v: Any) -> bool:
+        """A reading on a saturated axis (``stream.saturation``, the worker's calibrator drops it too): its calibrated
+        value would be wrong, so it is not published. Every publishable reading is watched, calibrated or not yet."""
+        return self._configs[s].drop_saturated and self._rails[s].push(float(v[0]), float(v[1]), float(v[2]))
 
     def _frame_ok(self, s: str, msg: Any) -> bool:
         """True when the message is of the frame the sensor is calibrated in (see ``_take``)."""

@@ -6,14 +6,17 @@ on that axis whatever the true component beyond it: those samples lie on a plane
 and pull every fit towards the plane (a tumble with a quarter of its x readings clipped was published 4° off at
 30° tilt; with a third of them, refused for a residual of 8.6 % that named no cause). ``RailWatch`` finds such a
 rail from the stream itself, with no range given: on one axis, the extreme value of everything seen, held exactly
-by ``RUN`` or more samples in a row while the other two components travel over at least ``SPREAD`` of the data's
-radius (half its widest range) and of the raw norm (the sensor turned while the axis stayed pinned), on an axis
-whose range is at least ``RANGE`` of the widest axis's.
+by ``RUN`` or more samples in a row while the other two components travel over more than ``SPREAD`` of their
+radius (half the wider of their ranges), of their raw norm and of ``WHOLE`` of the reading's norm (the sensor turned
+while the axis stayed pinned), on an axis whose range is at least ``RANGE`` of the widest axis's. The scale is
+mostly the other two axes' so that a code far out on the pinned one counts too: an HMC5883L reads -4096 on an axis
+whose ADC overflows, whatever the sign.
 
 What it is not: a quantised sensor's last count at the top of its sphere holds the samples within ``sqrt(2 q / R)``
 of the axis for a quantum ``q`` (0.13 R for an HMC5883L at its coarsest gain in the Earth field), a float reading's
 maximum is held once, a sensor at rest or wobbling moves its other components by little against the field (the
-BROAD recordings' first seconds: 2-6 µT of 47 µT, an extreme count held again and again), and a ground robot's
+BROAD recordings' first seconds: 2-6 µT of 47 µT, an extreme count held again and again; with the field or gravity
+along the pinned axis itself, their noise against a quarter of the whole reading), and a ground robot's
 vertical axis reads a few counts over its ring (its range is a few per cent of the widest; an axis clipped to 40 %
 of its reach still spans 40 % of the widest). Checked on every recording in ``../shared/data/real``: no rail.
 
@@ -78,8 +81,11 @@ class RailWatch:
     RUN = 5
     """Samples in a row exactly on the extreme ..."""
     SPREAD = 0.4
-    """... while the other two components travel over this share of the data's radius (half its widest range) and
-    of the raw norm ..."""
+    """... while the other two components travel over this share of their radius (half the wider of their ranges)
+    and of their raw norm ..."""
+    WHOLE = 0.25
+    """... (and of this share of the whole reading's norm: a sensor at rest with the field or gravity along the axis
+    has no other components, and their noise no travel) ..."""
     RANGE = 0.2
     """... on an axis whose range is at least this share of the widest axis's range."""
 
@@ -120,9 +126,11 @@ class RailWatch:
 
     def _is_rail(self, k: int, end: _End, v: tuple[float, float, float]) -> bool:
         ranges = [top.v1 + bottom.v1 for top, bottom in self._ends]
-        widest = max(ranges)
-        norm = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
-        return ranges[k] >= self.RANGE * widest and end.travel() >= self.SPREAD * max(0.5 * widest, norm)
+        a, b = v[(k + 1) % 3], v[(k + 2) % 3]  # the other two axes: a code far out on this one inflates little
+        radius = 0.5 * max(ranges[(k + 1) % 3], ranges[(k + 2) % 3])
+        whole = self.WHOLE * math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+        return (ranges[k] >= self.RANGE * max(ranges)
+                and end.travel() > self.SPREAD * max(radius, math.sqrt(a * a + b * b), whole))
 
     def on_rail(self, x: float, y: float, z: float) -> bool:
         """Whether a sample sits on a rail standing now (without counting it: for samples seen before)."""

@@ -464,6 +464,18 @@ def test_a_saturated_axis_is_dropped_named_and_the_rest_calibrated(harness: Harn
     assert "dropped as saturated: x at" in harness.last_status().message
     cal, truth = harness.node.calibrations["mag"], stream.truth
     assert np.linalg.norm(cal.offset - truth.offset) < 0.02 * truth.norm
+    before = len(harness.calibrated)  # once calibrated: a pinned reading's calibrated value would be wrong
+    t = float(stream.t[-1]) + 1.0
+    harness.send(mag_msg(harness.c, t + 0.02 * k, v) for k, v in enumerate(raw[:500]))
+    rails = [v for k, v in harness.node._rails["mag"].rails if k == 0]
+    assert lim in rails or -lim in rails
+    pinned = int(np.sum(np.isin(raw[:500, 0], rails)))
+    assert pinned > 20
+    assert harness.spin_until(lambda: len(harness.calibrated) >= before + 500 - pinned, 5.0)
+    harness.spin_until(lambda: False, 0.5)
+    got = np.array([[m.magnetic_field.x, m.magnetic_field.y, m.magnetic_field.z] for m in harness.calibrated[before:]])
+    assert len(got) == 500 - pinned
+    assert np.allclose(np.linalg.norm(got, axis=1), cal.norm, rtol=0.03)
 
 
 def test_a_second_frame_on_the_topic_is_ignored_and_flagged(harness: Harness, stream: sim.Recording) -> None:
