@@ -44,6 +44,10 @@ field-strength range in that unit (magnetometer 14-98 µT: a ratio of 6.9, below
 UNKNOWN = "raw"
 """The unit of static readings no unit fits: a unit without a known scale (no field-strength checks)."""
 _WHAT = {"mag": "an Earth field", "accel": "gravity"}
+_NAME = {"mag": "magnetometer", "accel": "accelerometer"}
+_CONFUSED = {"mag": {"g": ("gauss", "gauss"), "mg": ("mG", "milligauss")}}
+"""Accelerometer units a magnetometer's may be meant by: (the unit, its name)."""
+_A_NAME = {"mag": "a magnetometer", "accel": "an accelerometer"}
 _SIZE_POINTS = 6000
 
 
@@ -115,6 +119,8 @@ def resolve_unit(sensor: str, points: Array, given: str | None, *, default: str 
         ConfigError: the size is implausible in the given or default unit (the message names the unit that
             fits), or no unit or several fit an inference.
     """
+    if given is not None:
+        _not_the_other_sensors(sensor, given)
     size = sizes(points)
     unit = given if given is not None else default
     if not size or not any(x > 0 for x in size):
@@ -139,6 +145,20 @@ def resolve_unit(sensor: str, points: Array, given: str | None, *, default: str 
     else:
         msg = f"no --unit, and readings of size {decided:.4g} fit several units ({', '.join(cands)}): give --unit"
     raise ConfigError(msg)
+
+
+def _not_the_other_sensors(sensor: str, unit: str) -> None:
+    """ConfigError for a ``--unit`` that is empty, or unknown here but the other sensor's ('m/s^2' on a magnetometer,
+    'g' meant as gauss): taken as counts, it would switch every check off and be written into the calibration."""
+    other = "accel" if sensor == "mag" else "mag"
+    own = f"{_NAME[sensor]} units: {', '.join(UNIT_CHOICES[sensor])}; counts, unchecked"
+    if not unit.strip():
+        raise ConfigError(f"--unit {unit!r} names no unit ({own})")
+    if unit_scale(sensor, unit) is None and unit_scale(other, unit) is not None:
+        meant = _CONFUSED.get(sensor, {}).get(unit)
+        hint = f"; {meant[1]} is --unit {meant[0]}" if meant else ""
+        raise ConfigError(f"--unit {unit!r} is {_A_NAME[other]} unit and these are {_NAME[sensor]} readings "
+                          f"({own}){hint}")
 
 
 def infer_sensor(points: Array, given: str | None, from_file: str, unit: str | None) -> str:

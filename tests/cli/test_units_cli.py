@@ -50,6 +50,31 @@ def test_a_wrong_unit_is_refused_with_the_unit_that_fits(tmp_path: Path, capsys:
     assert "Traceback" not in err and not out.exists()
 
 
+@pytest.mark.parametrize("command", [["calibrate"], ["replay", "-q"], ["diagnose", "--no-validator"]])
+@pytest.mark.parametrize(("unit", "said"), [("m/s^2", "is an accelerometer unit and these are magnetometer readings"),
+                                            ("g", "gauss is --unit gauss"), ("mg", "milligauss is --unit mG"),
+                                            ("", "names no unit"), (" ", "names no unit")])
+def test_the_other_sensors_unit_or_none_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                   command: list[str], unit: str, said: str) -> None:
+    """A magnetometer's readings given an accelerometer's unit (or an empty one) were taken as counts: every check
+    off, and the unit written into the calibration. Now every command exits 2 on one line, writing nothing."""
+    path = write_csv(tmp_path / "field_mag.csv", _sphere())
+    out = tmp_path / "out"
+    extra = ["--out", str(out)] if command[0] == "diagnose" else ["--json", str(out)]
+    code, _, err = _run(capsys, command[0], str(path), "--unit", unit, *command[1:], *extra)
+    assert code == 2, err
+    lines = [ln for ln in err.splitlines() if ln.startswith("margcal ")]
+    assert len(lines) == 1 and said in lines[0], err
+    assert "Traceback" not in err and not out.exists()
+
+
+def test_an_accelerometer_given_a_magnetometers_unit_is_refused(tmp_path: Path,
+                                                                capsys: pytest.CaptureFixture[str]) -> None:
+    path = write_csv(tmp_path / "poses_acc.csv", _sphere(1.0, sensor="accel"))
+    code, _, err = _run(capsys, "calibrate", str(path), "--unit", "uT", "--samples", "all")
+    assert code == 2 and "'uT' is a magnetometer unit and these are accelerometer readings" in err, err
+
+
 def test_an_accelerometer_in_m_s2_given_as_g_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """m/s^2 readings given as g: "9.8 in g is not gravity; 9.8 m/s^2 is"."""
     path = write_csv(tmp_path / "poses_acc.csv", _sphere(1.0, sensor="accel"))
