@@ -165,7 +165,8 @@ class PipelineConfig:
     def for_sensor(cls, sensor: str, unit: str | None = None, **overrides: Any) -> PipelineConfig:
         """Defaults for ``"mag"`` (raw unit tesla unless given) or ``"accel"`` (m/s² unless given).
 
-        In a unit without a known scale (``units.unit_scale`` is None: counts) the field-strength check
+        The other sensor's unit (``m/s^2`` for ``"mag"``) is a ConfigError. In a unit without a known scale
+        (``units.unit_scale`` is None: counts) the field-strength check
         is off, the magnitude limits are learnt from the first ``units.LEARN_SAMPLES`` samples (unless
         ``min_magnitude`` or ``max_magnitude`` is given) and the offset limit is 20 field norms (an
         unsigned ADC's mid-scale: ``COUNTS_ACCEL_OFFSET_RATIO``).
@@ -177,6 +178,10 @@ class PipelineConfig:
             raise ConfigError(msg)
         u = unit or ("T" if sensor == "mag" else "m/s^2")
         scale = unit_scale(sensor, u)
+        other = "accel" if sensor == "mag" else "mag"
+        if scale is None and unit_scale(other, u) is not None:  # as counts it would switch every check off
+            raise ConfigError(f"unit {u!r} is the {'accelerometer' if other == 'accel' else 'magnetometer'}'s, not the "
+                              f"{'magnetometer' if sensor == 'mag' else 'accelerometer'}'s")
         unknown: dict[str, Any] = {}
         if scale is None:  # counts: no field-strength check, magnitude limits from the data
             learn = 0 if {"min_magnitude", "max_magnitude"} & set(overrides) else LEARN_SAMPLES

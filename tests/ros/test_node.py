@@ -568,6 +568,20 @@ def test_reset_sets_the_file_aside_and_the_default_file_is_the_nodes(context: Co
         h2.close()
 
 
+def test_the_accelerometers_unit_given_to_the_magnetometer_is_refused(context: Context, classes: MessageClasses,
+                                                                      stream: sim.Recording, tmp_path: Path) -> None:
+    """mag.unit 'm/s^2' was taken as counts (every check off, the unit written into the file); now it is refused at
+    start, said in the log, and the magnetometer is read in tesla (REP-103)."""
+    h = Harness(context, classes, tmp_path / "cal.yaml", mag__unit="m/s^2")
+    try:
+        assert h.node._configs["mag"].unit == "T"
+        h.publish(stream)
+        assert h.spin_until(lambda: h.node.calibrations["mag"] is not None, 10.0), h.last_status().message
+        assert h.node.calibrations["mag"].unit == "T"
+    finally:
+        h.close()
+
+
 def test_a_driver_in_microtesla_is_calibrated_with_mag_unit(context: Context, classes: MessageClasses,
                                                             stream: sim.Recording, tmp_path: Path) -> None:
     """mag.unit uT: a driver publishing µT (many do, against REP-103) is calibrated in µT, its limits and guard
