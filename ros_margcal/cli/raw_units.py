@@ -29,7 +29,7 @@ from ..model.errors import ConfigError
 from ..recordings.recording import Recording, drop_zero_rows
 from ..stream.config import STATIC_SPREAD, PipelineConfig
 from ..stream.saturation import on_rails
-from ..stream.units import unit_scale
+from ..stream.units import other_sensors_unit, unit_scale
 from .fit_rescue import MAX_READING
 
 __all__ = ["SLACK", "UNIT_CHOICES", "UNKNOWN", "fitting_units", "infer_sensor", "prepare", "resolve_unit", "sizes"]
@@ -45,9 +45,6 @@ UNKNOWN = "raw"
 """The unit of static readings no unit fits: a unit without a known scale (no field-strength checks)."""
 _WHAT = {"mag": "an Earth field", "accel": "gravity"}
 _NAME = {"mag": "magnetometer", "accel": "accelerometer"}
-_CONFUSED = {"mag": {"g": ("gauss", "gauss"), "mg": ("mG", "milligauss")}}
-"""Accelerometer units a magnetometer's may be meant by: (the unit, its name)."""
-_A_NAME = {"mag": "a magnetometer", "accel": "an accelerometer"}
 _SIZE_POINTS = 6000
 
 
@@ -148,17 +145,13 @@ def resolve_unit(sensor: str, points: Array, given: str | None, *, default: str 
 
 
 def _not_the_other_sensors(sensor: str, unit: str) -> None:
-    """ConfigError for a ``--unit`` that is empty, or unknown here but the other sensor's ('m/s^2' on a magnetometer,
-    'g' meant as gauss): taken as counts, it would switch every check off and be written into the calibration."""
-    other = "accel" if sensor == "mag" else "mag"
+    """ConfigError for a ``--unit`` that is empty, or the other sensor's (``units.other_sensors_unit``)."""
     own = f"{_NAME[sensor]} units: {', '.join(UNIT_CHOICES[sensor])}; counts, unchecked"
     if not unit.strip():
         raise ConfigError(f"--unit {unit!r} names no unit ({own})")
-    if unit_scale(sensor, unit) is None and unit_scale(other, unit) is not None:
-        meant = _CONFUSED.get(sensor, {}).get(unit)
-        hint = f"; {meant[1]} is --unit {meant[0]}" if meant else ""
-        raise ConfigError(f"--unit {unit!r} is {_A_NAME[other]} unit and these are {_NAME[sensor]} readings "
-                          f"({own}){hint}")
+    wrong = other_sensors_unit(sensor, unit)
+    if wrong:
+        raise ConfigError(f"--{wrong} ({own})")
 
 
 def infer_sensor(points: Array, given: str | None, from_file: str, unit: str | None) -> str:

@@ -46,7 +46,7 @@ from ..model.calibration import MODELS, Calibration
 from ..model.errors import ConfigError
 from ..model.fitting import LOSSES, METHODS, SUPPORTED
 from ..model.geomag import GeomagField, field_at
-from .units import ACCEL_UNITS, GRAVITY, LEARN_SAMPLES, MAG_UNITS, unit_scale
+from .units import ACCEL_UNITS, GRAVITY, LEARN_SAMPLES, MAG_UNITS, other_sensors_unit, unit_scale
 
 __all__ = ["ACCEL_UNITS", "FIELD_SPECS", "GRAVITY", "GYRO_PAIR_S", "MAG_UNITS", "STATIC_SPREAD", "FieldSpec",
            "PipelineConfig", "apart", "guard_rails", "plausibility", "raise_hint", "relative_spread", "rms_relative"]
@@ -178,10 +178,9 @@ class PipelineConfig:
             raise ConfigError(msg)
         u = unit or ("T" if sensor == "mag" else "m/s^2")
         scale = unit_scale(sensor, u)
-        other = "accel" if sensor == "mag" else "mag"
-        if scale is None and unit_scale(other, u) is not None:  # as counts it would switch every check off
-            raise ConfigError(f"unit {u!r} is the {'accelerometer' if other == 'accel' else 'magnetometer'}'s, not the "
-                              f"{'magnetometer' if sensor == 'mag' else 'accelerometer'}'s")
+        wrong = other_sensors_unit(sensor, u)
+        if wrong:
+            raise ConfigError(wrong)
         unknown: dict[str, Any] = {}
         if scale is None:  # counts: no field-strength check, magnitude limits from the data
             learn = 0 if {"min_magnitude", "max_magnitude"} & set(overrides) else LEARN_SAMPLES

@@ -20,7 +20,7 @@ make sense in a known unit:
 from __future__ import annotations
 
 __all__ = ["ACCEL_UNITS", "GRAVITY", "LEARN_HIGH", "LEARN_LOW", "LEARN_SAMPLES", "MAG_UNITS", "RELEARN_FACTOR", "RELEARN_SHARE",
-           "unit_scale"]
+           "other_sensors_unit", "unit_scale"]
 
 GRAVITY = 9.80665
 """Standard gravity, m/s²."""
@@ -53,3 +53,19 @@ def unit_scale(sensor: str, unit: str) -> float | None:
         return table[unit]
     folded = {k.lower(): v for k, v in table.items() if k not in ("G", "mG")}  # g/G, mg/mG clash across sensors
     return folded.get(unit.strip().lower())
+
+
+_A_SENSOR = {"mag": "a magnetometer", "accel": "an accelerometer"}
+_MEANT = {"mag": {"g": "gauss", "mg": "mG"}}
+"""Accelerometer units a magnetometer's may be meant by (g for gauss, mg for milligauss)."""
+
+
+def other_sensors_unit(sensor: str, unit: str) -> str:
+    """Why ``unit`` is refused for ``sensor`` when it is the other sensor's and not its own ("" otherwise): taken as
+    counts it would switch every check off and be written into the calibration."""
+    other = "accel" if sensor == "mag" else "mag"
+    if unit_scale(sensor, unit) is not None or unit_scale(other, unit) is None:
+        return ""
+    meant = _MEANT.get(sensor, {}).get(unit)
+    return (f"unit {unit!r} is {_A_SENSOR[other]} unit, not {_A_SENSOR[sensor]}'s"
+            + (f" ({meant!r}?)" if meant else ""))
