@@ -25,7 +25,7 @@ import sys
 import numpy as np
 from numpy.typing import NDArray
 
-from ..model.errors import ConfigError
+from ..model.errors import ConfigError, RecordingError
 from ..recordings.recording import Recording, drop_zero_rows
 from ..stream.config import STATIC_SPREAD, PipelineConfig
 from ..stream.saturation import on_rails
@@ -184,6 +184,8 @@ def prepare(rec: Recording, sensor: str | None, unit: str | None, where: str) ->
     if zeros:
         print(f"dropped {zeros} all-zero row(s) of {zeros + len(rec)} (x = y = z = 0: no field or gravity reads that)",
               file=sys.stderr)
+    if zeros and not len(rec):  # was "points needs at least 1 rows, got 0" from deep inside the fit
+        raise RecordingError(f"every row of {where} is all-zero (x = y = z = 0): no reading to use")
     name = infer_sensor(rec.raw, sensor, rec.sensor, unit)
     raw_unit = resolve_unit(name, rec.raw, unit, default=rec.unit or None, where=f"in {where}")
     rec.sensor, rec.unit = name, raw_unit

@@ -201,6 +201,12 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         return self._intake.seen
 
     @property
+    def clock(self) -> float:
+        """Stamp of the last sample taken onto the time base (0.0 before any): a dropped sample's stamp (far
+        future, a single jump) never moves it."""
+        return self._t
+
+    @property
     def calibration(self) -> Calibration | None:
         """The current (last accepted) calibration, or None."""
         return self._cal

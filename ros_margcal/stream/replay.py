@@ -21,6 +21,7 @@ magnetometer's, g an accelerometer's) for a driver that publishes another unit.
 
 from __future__ import annotations
 
+import math
 import sys
 from collections.abc import Iterable, Iterator
 from pathlib import Path
@@ -180,17 +181,21 @@ def replay(path: Path, *, sensor: str | None = None, unit: str | None = None, st
             if cal is None:
                 cfg = PipelineConfig.for_sensor(s, plan[name][1], **(sensor_options or {}).get(s, {}))
                 cal = cals[name] = SensorCalibrator(s, cfg, validator=validator)
-                next_status[name] = t
+                next_status[name] = -math.inf
             for ev in cal.push(t, xyz, gyro):
                 timeline.append(_event_entry(ev, name))
                 if on_line:
                     emit(f"{ev.t:9.2f} s  {name:5s}  {ev.kind.value:10s} {ev.message}")
-            if status_every > 0 and t >= next_status[name]:
-                st = cal.status(t)
+            # the cadence runs on the calibrator's clock, not the message's stamp: one far-future or jumped stamp
+            # (dropped) printed a status at 1e18 s, then none for as long as the jump; stamps that restart
+            # (a new time base) restart it
+            now, due = cal.clock, next_status[name]
+            if status_every > 0 and (now >= due or now < due - status_every):
+                st = cal.status(now)
                 timeline.append({"kind": "status", **st.to_dict(), **({} if name == s else {"calibrator": name})})
-                next_status[name] = t + status_every
+                next_status[name] = now + status_every
                 if on_line:
-                    emit(f"{t:9.2f} s  {name:5s}  {'status':10s} [{st.level.name}] {st.message}")
+                    emit(f"{now:9.2f} s  {name:5s}  {'status':10s} [{st.level.name}] {st.message}")
             n += 1
             if n % 1000 == 0:
                 bar.set_postfix_str(f"t = {t:.1f} s", refresh=False)

@@ -170,6 +170,19 @@ def test_zero_rows_are_dropped_and_counted_in_every_command(tmp_path: Path, caps
     assert code == 2 and "dropped 239 all-zero row(s)" in err, err  # counted before the unit is refused
 
 
+@pytest.mark.parametrize("command", ["calibrate", "replay", "diagnose"])
+def test_a_recording_of_zero_rows_only_is_refused_on_one_line(
+        command: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Every row all-zero: exit 2 saying so (calibrate and diagnose said "points needs at least 1 rows, got 0")."""
+    rec = _sphere()
+    rec.raw[:] = 0.0
+    path = write_csv(tmp_path / "zeros_mag.csv", rec)
+    code, _, err = _run(capsys, command, str(path), "--unit", "uT")
+    assert code == 2, err
+    assert "dropped 2000 all-zero row(s) of 2000" in err and "every row of" in err and "is all-zero" in err, err
+    assert "at least 1 rows" not in err and "Traceback" not in err, err
+
+
 def test_sizes_of_a_static_recording_are_its_median_norm() -> None:
     """A still sensor gives one size, its median norm; a spike does not make it turn."""
     raw = np.tile([20.0, -5.0, 40.0], (500, 1)) + np.random.default_rng(SEED).normal(scale=0.1, size=(500, 3))
