@@ -38,7 +38,7 @@ from typing import Any
 
 import numpy as np
 from study_ground_robot import independent_generator  # scripts/ is on the path when a script in it runs
-from study_real_recordings import DATA, UNITS, batch_stretches, heading_p95_against
+from study_real_recordings import DATA, batch_stretches, heading_p95_against, units
 
 from ros_margcal.model.calibration import Calibration
 from ros_margcal.model.fitting_prior import NAMES as SYM_NAMES
@@ -185,7 +185,8 @@ def simulated(gen: Any, group: str, seeds: tuple[int, ...], names: tuple[str, ..
 
 def real(data: Path) -> None:
     """Every published calibration's bound against its heading difference to the batch fit, per recording."""
-    names = [n for n in sorted(UNITS) if n.endswith("_mag.csv") and (data / n).exists()]
+    known = units(data)
+    names = [n for n in sorted(known) if n.endswith("_mag.csv") and (data / n).exists()]
     if not names:
         print(f"no real recordings at {data}: skipped")
         return
@@ -194,7 +195,7 @@ def real(data: Path) -> None:
     print(f"  {'recording':48s} {'cals':>4s} {HEADER}; batch fit")
     every: list[dict[str, float]] = []
     for name in names:
-        path, unit = data / name, UNITS[name]
+        path, unit = data / name, known[name]
         stretches, note = batch_stretches(path, "mag", unit)
         rows: list[dict[str, float]] = []
         if stretches:

@@ -17,6 +17,9 @@ are from isotropic, the scale the broad prior's matrix standard deviation
 Usage::
 
     python scripts/study_real_recordings.py [--data DIR] [--markdown] [--soft-iron]
+
+``--data DIR``: another folder of ``t,x,y,z`` CSVs (``*_mag.csv``, ``*_acc.csv``), its raw units in
+``DIR/units.yaml`` (``units``).
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 from ros_margcal.cli.calibrate import still_samples
 from ros_margcal.cli.fit_rescue import check, config_for, rescue, residual_note
@@ -36,7 +40,7 @@ from ros_margcal.model.fitting import fit
 from ros_margcal.model.heading import attitudes
 from ros_margcal.recordings.read import read_recording
 from ros_margcal.stream.calibrator import SensorCalibrator
-from ros_margcal.stream.config import STATIC_SPREAD, relative_spread
+from ros_margcal.stream.config import STATIC_SPREAD, relative_spread, white_noise
 from ros_margcal.stream.replay import replay
 from ros_margcal.stream.status import State
 
@@ -58,6 +62,16 @@ UNITS = {  # raw unit per recording, from the README of the real recordings
     "sunsided_mpu6050_unmoved-with-z-pointing-front-and-x-up_acc.csv": "g",
     "sunsided_mpu6050_unmoved-with-z-pointing-front-and-y-down_acc.csv": "g",
 }
+
+
+def units(data: Path) -> dict[str, str]:
+    """Recording -> raw unit: the shared recordings' (``UNITS``), and those another folder names in its
+    ``units.yaml`` (``file.csv: uT``; e.g. a held-out set from other public repositories)."""
+    extra = data / "units.yaml"
+    if not extra.exists():
+        return dict(UNITS)
+    got = yaml.safe_load(extra.read_text()) or {}
+    return {**UNITS, **{str(k): str(v) for k, v in got.items()}}
 
 
 def heading_p95_against(cal: Calibration, ref: Calibration, tilt_deg: float, inclination: float = 60.0) -> float:
@@ -94,7 +108,8 @@ def batch_stretches(path: Path, sensor: str, unit: str) -> tuple[list[Calibratio
     cfg = config_for(sensor, unit)
     try:
         cal = fit(pts, model="sym", method="lm", sensor=sensor, unit=unit)
-        why, high = check(cal, cfg), residual_note(cal, cfg)
+        noise = white_noise(np.asarray(rec.raw, dtype=np.float64)) if sensor == "mag" else 0.0  # as margcal calibrate
+        why, high = check(cal, cfg), residual_note(cal, cfg, noise)
     except (ConvergenceError, DegenerateDataError) as exc:
         cal, why, high = None, str(exc), ""
     if not why and not high:
@@ -113,8 +128,7 @@ def batch_stretches(path: Path, sensor: str, unit: str) -> tuple[list[Calibratio
     return [p.calibration for p in fitted if p.calibration is not None], note
 
 
-def study(path: Path) -> dict[str, object]:
-    unit = UNITS[path.name]
+def study(path: Path, unit: str) -> dict[str, object]:
     sensor = "accel" if path.stem.endswith("_acc") else "mag"
     out = replay(path, sensor=sensor, unit=unit, status_every=0.0, progress=False)
     cal = out["calibrators"][sensor]
@@ -146,6 +160,9 @@ def reason(path: Path, sensor: str, cal: SensorCalibrator, timeline: list[dict[s
         return (f"one static pose (the whole recording within {100 * spread:.2g} % of its mean): it fixes the norm, "
                 "not the ellipsoid's 9 parameters; calibrating needs >= 9 poses")
     gate = getattr(cal, "_gate", None)
+    if sensor == "accel" and cal.kept == 0 and gate is not None and not math.isfinite(gate.window_stats[0]):
+        return (f"no {gate.window_s:g} s window ever filled: the poses (or stretches between stamp gaps) are shorter "
+                "than the gate's window; no still pose for an accelerometer fit")
     if sensor == "accel" and cal.kept == 0 and gate is not None:
         return (f"moved all through the recording: no {gate.window_s:g} s window still (last window CV "
                 f"{gate.window_stats[0]:.3g}, axis spread {gate.window_stats[1]:.3g}; the learnt gate's cap is "
@@ -162,7 +179,7 @@ def soft_iron_survey(data: Path) -> None:
     """Print each full-sphere magnetometer's matrix deviation from isotropic (module docstring)."""
     print(f"{'recording':42s} {'w_xx':>6s} {'w_yy':>6s} {'w_zz':>6s} {'w_xy':>6s} {'w_xz':>6s} {'w_yz':>6s}  "
           f"{'z gain vs x, y':>14s}")
-    for name in sorted(UNITS):
+    for name in sorted(units(data)):
         if not (name.endswith("_mag.csv") and ("full_sphere" in name or "undisturbed" in name)) or not (data / name).exists():
             continue
         rec = read_recording(data / name, sensor="mag")
@@ -189,7 +206,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.soft_iron:
         soft_iron_survey(args.data)
         return 0
-    rows = [study(args.data / name) for name in sorted(UNITS) if (args.data / name).exists()]
+    known = units(args.data)
+    rows = [study(args.data / name, known[name]) for name in sorted(known) if (args.data / name).exists()]
     print("| recording | unit | stream | first calibration | why (final status) | batch fit | offset diff | "
           "heading p95 level / 30° |")
     print("| --- | --- | --- | --- | --- | --- | --- | --- |")

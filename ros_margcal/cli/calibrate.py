@@ -51,7 +51,7 @@ from ..model.errors import ConfigError, ConvergenceError, DegenerateDataError, R
 from ..model.fitting import LOSSES, METHODS, SUPPORTED, fit
 from ..recordings.read import read_recording
 from ..recordings.recording import Recording, continue_clock
-from ..stream.config import PipelineConfig
+from ..stream.config import PipelineConfig, white_noise
 from .calibrate_guard import EXIT_REFUSED, forced, norm_source, refusal
 from .fit_rescue import (
     MIN_SCALE,
@@ -295,6 +295,8 @@ def run(args: argparse.Namespace) -> int:
     if cfg.field_model() is not None:
         print(field_line(cfg, norm_given=args.norm is not None))
     points, times, dropped = _points(rec, args, cfg)
+    # the white noise of the readings in time order widens the residual limit of a noisy magnetometer (as the stream's)
+    noise = white_noise(np.asarray(rec.raw, dtype=np.float64)) if sensor == "mag" else 0.0
     counts = {"zero": n_read - n_clean, "saturated": n_clean - len(rec)}
     dropped = {**{k: n for k, n in counts.items() if n}, **dropped}
     extra: dict[str, Any] = {"dropped": dropped} if dropped else {}
@@ -307,7 +309,7 @@ def run(args: argparse.Namespace) -> int:
         cal = fit(points, model=model, method=args.method, norm=norm, loss=args.loss, f_scale=args.f_scale,
                   sensor=sensor, unit=unit, **iters)  # fmt: skip
         failure = check(cal, cfg)
-        high = residual_note(cal, cfg)
+        high = residual_note(cal, cfg, noise)
     except (ConvergenceError, DegenerateDataError) as exc:
         if args.no_rescue:
             raise
@@ -316,7 +318,7 @@ def run(args: argparse.Namespace) -> int:
         res = rescue(times, points, failure=failure or high, model=model if model in SUPPORTED["lm"] else "sym",
                      norm=prior_norm, loss=args.loss, sensor=sensor, unit=unit, cfg=cfg, change_only=not failure)
         if res is not None:
-            return _report_rescue(res, args, cfg, n_read, extra, fixed)
+            return _report_rescue(res, args, cfg, n_read, extra, fixed, noise)
     if high:
         print(f"warning: {high} (no offset change located: motion or disturbances?)", file=sys.stderr)
     if cal is None:
@@ -329,14 +331,14 @@ def run(args: argparse.Namespace) -> int:
         note = radius_note(cal, cfg) if args.norm is None else ""
         if note:
             print(note, file=sys.stderr)
-    return _guarded_write(args, cfg, {sensor: cal}, [{**result_dict(cal, str(args.input), n_read), **extra}])
+    return _guarded_write(args, cfg, {sensor: cal}, [{**result_dict(cal, str(args.input), n_read), **extra}], noise)
 
 
 def _guarded_write(args: argparse.Namespace, cfg: PipelineConfig, cals: dict[str, Calibration],
-                   results: list[dict[str, Any]]) -> int:
+                   results: list[dict[str, Any]], noise: float = 0.0) -> int:
     """Write ``cals`` unless the guard rails refuse one (``EXIT_REFUSED``, nothing written); --force writes them
     marked as forced."""
-    refused = {k: why for k, c in cals.items() if (why := refusal(c, cfg))}
+    refused = {k: why for k, c in cals.items() if (why := refusal(c, cfg, noise))}
     if refused and not args.force:
         for k, why in refused.items():
             print(f"margcal calibrate: {k}: refused by the guard rails: {why}", file=sys.stderr)
@@ -364,7 +366,7 @@ def _write(args: argparse.Namespace, cals: dict[str, Calibration], results: list
 
 
 def _report_rescue(res: Rescue, args: argparse.Namespace, cfg: PipelineConfig, n_read: int, extra: dict[str, Any],
-                   fixed: str) -> int:
+                   fixed: str, noise: float = 0.0) -> int:
     """Print the diagnosis and the calibrations it fitted, write them if the guard rails pass them; 3 when nothing
     could be fitted."""
     for line in res.lines:
@@ -397,4 +399,4 @@ def _report_rescue(res: Rescue, args: argparse.Namespace, cfg: PipelineConfig, n
         if pf is not None:
             d["updated"], d["from_prior"] = list(pf.updated), list(pf.from_prior)
         results.append(d)
-    return _guarded_write(args, cfg, cals, results)
+    return _guarded_write(args, cfg, cals, results, noise)

@@ -45,8 +45,9 @@ def _heading(cal: Calibration, cfg: PipelineConfig) -> str:
     return ""
 
 
-def refusal(cal: Calibration, cfg: PipelineConfig | None) -> str:
-    """Why the stream would not publish ``cal`` (module docstring), "" when it would.
+def refusal(cal: Calibration, cfg: PipelineConfig | None, noise: float = 0.0) -> str:
+    """Why the stream would not publish ``cal`` (module docstring), "" when it would; ``noise``: the sensor's white
+    noise in raw units (``stream.config.white_noise``), which widens the residual limit as in the stream.
 
     A magnetometer's prior (MAP) fit is partial by design: as in the stream, its predicted heading error
     judges it, not the uncertainty of the terms it keeps from the prior.
@@ -57,7 +58,7 @@ def refusal(cal: Calibration, cfg: PipelineConfig | None) -> str:
     if n is not None and n < cfg.min_points:  # the stream's first check: a fit of 10 samples had 0.09 % residual at 0.5 % noise
         return (f"{n} samples < min_points {cfg.min_points}: too few to fit the model and judge the fit (its residual "
                 "falls below the noise); record more")
-    high = residual_note(cal, cfg)
+    high = residual_note(cal, cfg, noise)
     if high:
         cause = ("iron or a magnet moving near the sensor, or a change not located" if cfg.sensor == "mag" else
                  "linear acceleration: the sensor moved while sampled; record still poses")

@@ -44,7 +44,7 @@ from ..model.errors import ConvergenceError, DegenerateDataError, InputError
 from ..model.fitting import fit
 from ..model.fitting_prior import PriorFit, broad_prior, fit_with_prior
 from ..model.heading import UNDETERMINED_DEG, format_bound, heading_p95_quantile, heading_p95_typical
-from ..stream.config import STATIC_SPREAD, PipelineConfig, plausibility, relative_spread
+from ..stream.config import STATIC_SPREAD, PipelineConfig, plausibility, relative_spread, residual_limit
 from ..stream.observable import DEFAULT_INCLINATION_DEG
 
 __all__ = [
@@ -210,12 +210,16 @@ def check(cal: Calibration, cfg: PipelineConfig | None) -> str:
     return "" if cfg is None else plausibility(cal, cfg)
 
 
-def residual_note(cal: Calibration, cfg: PipelineConfig | None) -> str:
-    """"" unless the residual exceeds the online calibrator's ``max_residual`` (5 % of the field for the magnetometer)."""
+def residual_note(cal: Calibration, cfg: PipelineConfig | None, noise: float = 0.0) -> str:
+    """"" unless the residual exceeds the online calibrator's limit (``max_residual``, 5 % of the field for the
+    magnetometer, or wider for a sensor whose white ``noise``, raw units, is larger: ``stream.config.residual_limit``)."""
     st = cal.stats
-    if cfg is None or st is None or st.rms_relative <= cfg.max_residual:
+    if cfg is None or st is None:
         return ""
-    return (f"residual RMS {100 * st.rms_relative:.3g} % > limit {100 * cfg.max_residual:.3g} %: "
+    limit, why = residual_limit(cal, cfg, noise)
+    if st.rms_relative <= limit:
+        return ""
+    return (f"residual RMS {100 * st.rms_relative:.3g} % > limit {100 * limit:.3g} %{why}: "
             "one calibration does not explain the recording")
 
 

@@ -48,8 +48,9 @@ from ..model.fitting import LOSSES, METHODS, SUPPORTED
 from ..model.geomag import GeomagField, field_at
 from .units import ACCEL_UNITS, GRAVITY, LEARN_SAMPLES, MAG_UNITS, other_sensors_unit, unit_scale
 
-__all__ = ["ACCEL_UNITS", "FIELD_SPECS", "GRAVITY", "GYRO_PAIR_S", "MAG_UNITS", "STATIC_SPREAD", "FieldSpec",
-           "PipelineConfig", "apart", "guard_rails", "plausibility", "raise_hint", "relative_spread", "rms_relative"]
+__all__ = ["ACCEL_UNITS", "FIELD_SPECS", "GRAVITY", "GYRO_PAIR_S", "MAG_UNITS", "MOTION_NOT_NOISE", "RESIDUAL_NOISE_FACTOR",
+           "STATIC_SPREAD", "FieldSpec", "PipelineConfig", "apart", "guard_rails", "plausibility", "raise_hint",
+           "relative_spread", "residual_limit", "rms_relative", "white_noise"]
 
 EARTH_FIELD_RANGE_T = (20e-6, 70e-6)
 """Plausible geomagnetic field strength, tesla."""
@@ -410,14 +411,53 @@ def rms_relative(cal: Calibration, pts: NDArray[np.float64]) -> float:
     return float(np.sqrt(np.mean(e * e)))
 
 
-def guard_rails(cal: Calibration, cfg: PipelineConfig, recent: NDArray[np.float64], current: Calibration | None) -> str:
-    """Why ``cal`` must not be published ("" when it passes every check)."""
+RESIDUAL_NOISE_FACTOR = 1.5
+"""A fit's residual RMS is refused beyond ``max_residual`` or this many times the sensor's white noise
+(``white_noise``, relative to the raw radius), whichever is wider: a noisy sensor's residual is its noise, not a
+misfit (a QMC5883L whose readings scatter by 4.8 % of its field was refused for a 6.2 % residual; a slow disturbance,
+a magnet moving, leaves the second differences, and so the limit, alone)."""
+
+
+MOTION_NOT_NOISE = 0.1
+"""A "white noise" above this share of the field is the motion between samples (readings without time order, pose
+means, a slow sensor turned fast: their second differences are the field's own size), not noise: the limit stays."""
+
+
+def white_noise(points: NDArray[np.float64]) -> float:
+    """The white noise of time-ordered raw samples, one axis, raw units: the robust sd of their second differences
+    over sqrt(6) (a smooth motion adds little at the sample rate, a slow disturbance nothing); 0 for fewer than 3
+    samples. A reading repeated exactly (a logger faster than the sensor) counts once: its steps are the sensor's."""
+    v = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if len(v) > 1:
+        v = v[np.concatenate([[True], np.any(v[1:] != v[:-1], axis=1)])]
+    if len(v) < 3:
+        return 0.0
+    d2 = v[2:] - 2.0 * v[1:-1] + v[:-2]
+    sd = 1.4826 * float(np.median(np.abs(d2))) / math.sqrt(6.0)
+    return sd if math.isfinite(sd) else 0.0
+
+
+def residual_limit(cal: Calibration, cfg: PipelineConfig, noise: float = 0.0) -> tuple[float, str]:
+    """The residual RMS limit of ``cal`` (``RESIDUAL_NOISE_FACTOR``) given the sensor's white ``noise`` (raw units),
+    and the words a refusal adds when the noise set it ("" when ``max_residual`` did)."""
+    radius = cal.raw_radius
+    rel = noise / radius if noise > 0 and math.isfinite(radius) and radius > 0 else 0.0
+    if rel > MOTION_NOT_NOISE or RESIDUAL_NOISE_FACTOR * rel <= cfg.max_residual:
+        return cfg.max_residual, ""
+    return RESIDUAL_NOISE_FACTOR * rel, f" ({RESIDUAL_NOISE_FACTOR:g} x the sensor's white noise, {100 * rel:.3g} %)"
+
+
+def guard_rails(cal: Calibration, cfg: PipelineConfig, recent: NDArray[np.float64], current: Calibration | None,
+                noise: float = 0.0) -> str:
+    """Why ``cal`` must not be published ("" when it passes every check); ``noise``: the sensor's white noise in raw
+    units (``white_noise``), which widens the residual limit (``residual_limit``)."""
     st = cal.stats
     if st is not None:
         if not st.converged:
             return f"fit did not converge after {st.iterations} iterations"
-        if not st.rms_relative <= cfg.max_residual:
-            return f"residual RMS {100 * st.rms_relative:.2f} % > limit {100 * cfg.max_residual:.2f} %"
+        limit, why = residual_limit(cal, cfg, noise)
+        if not st.rms_relative <= limit:
+            return f"residual RMS {100 * st.rms_relative:.2f} % > limit {100 * limit:.2f} %{why}"
     reason = plausibility(cal, cfg)
     if reason:
         return reason

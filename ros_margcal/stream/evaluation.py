@@ -32,7 +32,7 @@ from numpy.typing import NDArray
 from ..model.calibration import Calibration
 from ..model.errors import MargCalError
 from ..model.fitting import fit
-from .config import PipelineConfig, apart, guard_rails
+from .config import PipelineConfig, apart, guard_rails, white_noise
 from .partial import PartialCalibration
 from .status import Event, EventKind, State, pct
 
@@ -279,6 +279,7 @@ class Evaluation(PartialCalibration):
         """A snapshot of what the fit needs (the fit itself may then run without the lock)."""
         rows = list(self._gyro_buf) if self.sensor == "mag" and self._full_mount_due() else []  # the mounting (partial.py)
         return {"t": t, "points": self._buffer.points(), "recent": self._judge_points(), "current": self._cal,
+                "noise": white_noise(np.array(self._recent_v, dtype=np.float64)),  # the residual limit (config.py)
                 "config": self.config, "buffer": self._buffer, "changes": self.changes,
                 "current_is_map": self._cal is not None and self._partial is not None,
                 "gyro_rows": rows, "mount_applied": self._mount_applied, "mounting_kept": self._mounting}
@@ -326,7 +327,8 @@ class Evaluation(PartialCalibration):
                       f_scale=scale, init="lin_auto", max_iter=cfg.max_iter, sensor=self.sensor, unit=cfg.unit)
             cal = cal.replace(stamp=job["t"])
             # a MAP calibration (partial or early) is no yardstick for the full fit: no not-worse check against it
-            reason = guard_rails(cal, cfg, job["recent"], None if job.get("current_is_map") else job["current"])
+            reason = guard_rails(cal, cfg, job["recent"], None if job.get("current_is_map") else job["current"],
+                                 noise=job.get("noise", 0.0))
         except (ValueError, ArithmeticError) as exc:  # MargCalError is a ValueError, as is LinAlgError
             return None, f"fit failed: {exc}"
         if not reason:
