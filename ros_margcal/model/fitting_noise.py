@@ -45,7 +45,10 @@ from scipy.fft import next_fast_len
 from scipy.optimize import least_squares
 from scipy.signal import lfilter
 
-__all__ = ["NOISE_RHO_MIN", "Absorbed", "Whitener", "ar1_product", "expected_acf", "noise_model", "whitener"]
+from .steps import Steps, drained
+
+__all__ = ["NOISE_RHO_MIN", "Absorbed", "Whitener", "ar1_product", "expected_acf", "noise_model", "noise_model_steps",
+           "whitener"]
 
 Array = NDArray[np.float64]
 
@@ -63,6 +66,12 @@ def noise_model(r: Array, absorbed: Array | None = None) -> tuple[float, float] 
     the residuals look white. ``absorbed`` (m, p): the fit's share of the noise, ``r = (I - U U^T) e`` (module
     docstring, **Absorbed noise**): the model is then matched to what such residuals show, and None means the
     fitted noise's own lag-1 correlation ``c phi`` is below ``NOISE_RHO_MIN``."""
+    return drained(noise_model_steps(r, absorbed))
+
+
+def noise_model_steps(r: Array, absorbed: Array | None = None) -> Steps[tuple[float, float] | None]:
+    """``noise_model`` in steps (``steps``): two with ``absorbed`` (the grid of ``phi``, then its refinement), one
+    without."""
     m = len(r)
     max_lag = min(m // 10, _MAX_NOISE_LAG)
     if max_lag < 2:
@@ -75,7 +84,7 @@ def noise_model(r: Array, absorbed: Array | None = None) -> tuple[float, float] 
         return None
     rho = acf[1:] / acf[0]
     if absorbed is not None:
-        return _absorbed_model(rho, absorbed, max_lag)
+        return (yield from _absorbed_model(rho, absorbed, max_lag))
     if rho[0] < NOISE_RHO_MIN or rho[1] <= 0:
         return None
     below = np.flatnonzero(rho < NOISE_RHO_MIN)
@@ -108,7 +117,7 @@ def _debiased(rho: Array, m: int, lags: Array, start: tuple[float, float]) -> tu
     return float(fit.x[0]), float(fit.x[1])
 
 
-def _absorbed_model(rho: Array, absorbed: Array, max_lag: int) -> tuple[float, float] | None:
+def _absorbed_model(rho: Array, absorbed: Array, max_lag: int) -> Steps[tuple[float, float] | None]:
     """``(c, phi)`` whose ``Absorbed`` expected autocorrelation fits ``rho`` best over lags spread geometrically up to
     ``max_lag``: for each ``phi`` of a grid (and a golden-section refinement about the best) the best ``c`` of a
     dense grid; None when ``c phi < NOISE_RHO_MIN``."""
@@ -128,6 +137,7 @@ def _absorbed_model(rho: Array, absorbed: Array, max_lag: int) -> tuple[float, f
     lo, hi = math.log(0.3 / 0.7), math.log(_PHI_MAX / (1.0 - _PHI_MAX))
     xs = np.linspace(lo, hi, 7)
     errs = [best_c(_expit(x))[0] for x in xs]
+    yield  # the refinement next
     k = int(np.argmin(errs))
     a, b = xs[max(k - 1, 0)], xs[min(k + 1, len(xs) - 1)]
     g = (math.sqrt(5.0) - 1.0) / 2.0

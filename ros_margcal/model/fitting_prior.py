@@ -102,10 +102,11 @@ from .fitting_core import mad_sigma, pack, parameter_names, resjac, unpack
 from .fitting_geometric import geometric, norm_spreads
 from .fitting_gyro import GYRO_BIAS_STD, GYRO_SCALE_STD, MIN_EXPLAINED, GyroBlocks, GyroTerm, explained, frame_check
 from .fitting_level import LevelTerm
-from .fitting_noise import Whitener, noise_model, whitener
+from .fitting_noise import Whitener, noise_model_steps, whitener
+from .steps import Steps, drained
 
 __all__ = ["BROAD_MATRIX_STD", "BROAD_OFFSET_STD", "UPDATED_VARIANCE_RATIO", "Linearised", "PriorFit", "broad_prior",
-           "fit_with_prior", "linearised_at", "posterior_at"]
+           "fit_with_prior", "fit_with_prior_steps", "linearised_at", "posterior_at"]
 
 Array = NDArray[np.float64]
 
@@ -121,6 +122,7 @@ _MIN_SIGMA_REL = 1e-6
 _LM_FTOL = 1e-9
 _LM_XTOL = 1e-10
 _LM_LAM_MAX = 1e12
+_LM_STEP_EVALS = 20  # evaluations per step of a solve (a 1500-point ring: about 9 ms)
 
 
 @dataclass(frozen=True)
@@ -209,7 +211,20 @@ def fit_with_prior(points: ArrayLike, prior: Calibration, *, sigma: float | None
                    norm_rel_std: float = 0.0, start: Calibration | None = None,
                    spread: ArrayLike | None = None, gyro: GyroBlocks | None = None,
                    gyro_scale_std: float = GYRO_SCALE_STD, level: bool = False) -> PriorFit:
-    """MAP fit of the symmetric model to ``points`` (N, 3) given a prior calibration (module docstring).
+    """MAP fit of the symmetric model to ``points`` (N, 3) given a prior calibration (module docstring): the steps of
+    ``fit_with_prior_steps`` run to the end."""
+    return drained(fit_with_prior_steps(points, prior, sigma=sigma, inflate=inflate, max_iter=max_iter, stamp=stamp,
+                                        time_ordered=time_ordered, norm_rel_std=norm_rel_std, start=start,
+                                        spread=spread, gyro=gyro, gyro_scale_std=gyro_scale_std, level=level))
+
+
+def fit_with_prior_steps(points: ArrayLike, prior: Calibration, *, sigma: float | None = None, inflate: float = 1.0,
+                         max_iter: int = 200, stamp: float = 0.0, time_ordered: bool = False,
+                         norm_rel_std: float = 0.0, start: Calibration | None = None,
+                         spread: ArrayLike | None = None, gyro: GyroBlocks | None = None,
+                         gyro_scale_std: float = GYRO_SCALE_STD, level: bool = False) -> Steps[PriorFit]:
+    """MAP fit of the symmetric model to ``points`` (N, 3) given a prior calibration (module docstring), in steps of
+    one Levenberg-Marquardt solve or half a noise model each (a stream spreads them over several samples: ``steps``).
 
     Args:
         points: raw readings.
@@ -284,15 +299,18 @@ def fit_with_prior(points: ArrayLike, prior: Calibration, *, sigma: float | None
         term = GyroTerm(gyro, 1.0, at)
     elif level:  # two pseudo-observations, no parameters of their own
         term = LevelTerm(pts, 1.0, theta0.size)
-    theta, s, iters = _best_solve(z, starts, theta0, info0, chol, n0, sigma, floor, max_iter, sp, term)
+    theta, s, iters = yield from _best_solve(z, starts, theta0, info0, chol, n0, sigma, floor, max_iter, sp, term)
     r, jt_geo = geometric(z, _geo(theta, term), n0, sp)
-    model = noise_model(r, _absorbed(jt_geo, info0, s)) if time_ordered else None
+    if time_ordered:
+        yield
+    model = (yield from noise_model_steps(r, _absorbed(jt_geo, info0, s))) if time_ordered else None
     white = None if model is None else whitener(model)  # coloured: generalised least squares (module docstring)
     s_w = s if white is None else max(mad_sigma(white(r)), floor)
     if white is not None or term is not None:  # one more solve: weighted, and the gyro at its own noise
         if term is not None:
             term.reweigh(theta, s_w, floor)
-        theta, k = _lm(z, theta, theta0, info0, n0, s_w, max_iter, sp, white, term)
+        yield
+        theta, k = yield from _lm(z, theta, theta0, info0, n0, s_w, max_iter, sp, white, term)
         if not np.all(np.isfinite(theta)):
             msg = "MAP fit found no finite solution"
             raise ConvergenceError(msg)
@@ -306,17 +324,19 @@ def fit_with_prior(points: ArrayLike, prior: Calibration, *, sigma: float | None
         if not share_g >= MIN_EXPLAINED and start is not None:
             # a given start (a stream's previous solution) may be the ring's mirror centre, where a right gyro
             # turns the field the wrong way: every default start once more before the gyro is blamed
-            again = fit_with_prior(points, prior, sigma=sigma, inflate=inflate, max_iter=max_iter, stamp=stamp,
-                                   time_ordered=time_ordered, norm_rel_std=norm_rel_std, spread=spread, gyro=gyro,
-                                   gyro_scale_std=gyro_scale_std, level=level)
+            yield
+            again = yield from fit_with_prior_steps(points, prior, sigma=sigma, inflate=inflate, max_iter=max_iter,
+                                                    stamp=stamp, time_ordered=time_ordered, norm_rel_std=norm_rel_std,
+                                                    spread=spread, gyro=gyro, gyro_scale_std=gyro_scale_std, level=level)
             if again.gyro_used:
                 return again
         if not share_g >= MIN_EXPLAINED:  # rate and reading in different frames: the magnetometer alone
             # held level only when the gyro is known to be in another frame (named): a gyro in the right frame that
             # does not explain the turn yet (a few blocks) must not let the level assumption publish for it
-            alone = fit_with_prior(points, prior, sigma=sigma, inflate=inflate, max_iter=max_iter, stamp=stamp,
-                                   time_ordered=time_ordered, norm_rel_std=norm_rel_std, start=start, spread=spread,
-                                   level=level and bool(frame))
+            yield
+            alone = yield from fit_with_prior_steps(points, prior, sigma=sigma, inflate=inflate, max_iter=max_iter,
+                                                    stamp=stamp, time_ordered=time_ordered, norm_rel_std=norm_rel_std,
+                                                    start=start, spread=spread, level=level and bool(frame))
             # the frame judged again at the magnetometer's own solution, which the wrong rates did not pull
             frame = frame_check(term.blocks, alone.calibration.offset, alone.calibration.matrix)[0]
             return dataclasses.replace(alone, gyro_explained=share_g, gyro_frame=frame)
@@ -356,17 +376,19 @@ def _gyro_estimates(theta: Array, term: Term | None) -> dict[str, tuple[float, .
 
 def _best_solve(z: Array, starts: list[Array], theta0: Array, info0: Array, chol: Array, n0: float,
                 sigma: float | None, floor: float, max_iter: int, sp: Array | None,
-                term: Term | None = None) -> tuple[Array, float, int]:
+                term: Term | None = None) -> Steps[tuple[Array, float, int]]:
     """The unweighted MAP solve from each start; the lowest posterior cost wins, every start judged at the
-    lowest noise found: theta, sigma, evaluations.
+    lowest noise found: theta, sigma, evaluations (in steps: ``_solve``).
 
     Raises:
         ConvergenceError: no start led to a finite solution.
     """
     sols = []
-    for th_start in starts:
+    for i, th_start in enumerate(starts):
+        if i:
+            yield
         try:
-            sols.append(_solve(z, th_start, theta0, info0, n0, sigma, floor, max_iter, sp, term))
+            sols.append((yield from _solve(z, th_start, theta0, info0, n0, sigma, floor, max_iter, sp, term)))
         except (np.linalg.LinAlgError, ValueError, FloatingPointError):
             continue
     if not sols:
@@ -413,18 +435,20 @@ def _sphere_centres(pts: Array, radius: float) -> tuple[list[Array], bool]:
 
 
 def _solve(z: Array, start: Array, theta0: Array, info0: Array, n: float, sigma: float | None, floor: float,
-           max_iter: int, sp: Array | None = None, term: Term | None = None) -> tuple[Array, float, int]:
+           max_iter: int, sp: Array | None = None, term: Term | None = None) -> Steps[tuple[Array, float, int]]:
     """One MAP solve from ``start`` (sigma, and the gyro's weight, re-estimated between rounds unless sigma
-    is given): theta, sigma, evaluations."""
+    is given): theta, sigma, evaluations; a step per round."""
     theta, iters = start.copy(), 0
     s = sigma
-    for _ in range(1 if sigma is not None else 3):
+    for round_ in range(1 if sigma is not None else 3):
+        if round_:
+            yield
         if sigma is None:
             s = max(mad_sigma(geometric(z, _geo(theta, term), n, sp)[0]), floor)
         assert s is not None
         if term is not None:
             term.reweigh(theta, s, floor)
-        theta, k = _lm(z, theta, theta0, info0, n, s, max_iter, sp, None, term)
+        theta, k = yield from _lm(z, theta, theta0, info0, n, s, max_iter, sp, None, term)
         iters += k
         if not np.all(np.isfinite(theta)):
             msg = "non-finite solution"
@@ -434,14 +458,15 @@ def _solve(z: Array, start: Array, theta0: Array, info0: Array, n: float, sigma:
 
 
 def _lm(z: Array, theta: Array, theta0: Array, info0: Array, n: float, s: float, max_iter: int,
-        sp: Array | None = None, white: Whitener | None = None, term: Term | None = None) -> tuple[Array, int]:
+        sp: Array | None = None, white: Whitener | None = None, term: Term | None = None) -> Steps[tuple[Array, int]]:
     """Levenberg-Marquardt on ``S(theta)`` through its normal equations: ``(H + lam diag H) step = -g`` with
     ``H = J^T J / s^2 + P_0^-1`` (10 x 10 at most), one residual-and-Jacobian evaluation per trial, the damping
     updated from the ratio of the actual to the predicted decrease (Nielsen's rule); stops when a step
     lowers (or its quadratic model promises to lower) ``S`` by less than ``_LM_FTOL`` of it, or moves
     ``theta`` by less than ``_LM_XTOL`` of its size. (MINPACK's QR of the stacked (N + P) x P system gave the
     same solutions at several times the cost.) ``white``: residuals and Jacobian pass through this filter
-    (generalised least squares; ``s`` is then the whitened residuals' noise); ``term``: the gyro's residuals join."""
+    (generalised least squares; ``s`` is then the whitened residuals' noise); ``term``: the gyro's residuals join.
+    In steps of ``_LM_STEP_EVALS`` evaluations (``steps``)."""
     w = 1.0 / (s * s)
     r, jt = _residuals(z, theta, n, sp, white, term)
     dp = theta - theta0
@@ -464,6 +489,8 @@ def _lm(z: Array, theta: Array, theta0: Array, info0: Array, n: float, s: float,
         if pred <= _LM_FTOL * cost or float(np.linalg.norm(step)) <= _LM_XTOL * (float(np.linalg.norm(theta)) + _LM_XTOL):
             break  # the quadratic model promises (next to) nothing: converged, no evaluation spent on it
         cand = theta + step
+        if evals % _LM_STEP_EVALS == 0:
+            yield
         r2, jt2 = _residuals(z, cand, n, sp, white, term)
         evals += 1
         dp2 = cand - theta0

@@ -66,9 +66,11 @@ from .fitting_gyro import (
     skew,
 )
 from .fitting_jackknife import grouped_jackknife
+from .steps import Steps, drained
 
 __all__ = ["DECIDE_CHI2", "JACKKNIFE_CHUNKS", "MIN_BLOCKS", "MISALIGN_STD", "REFINE", "RIVAL", "ROTATIONS", "SINGLE_AXIS",
-           "TIME_OFFSET_STD", "Mounting", "axis_angle", "find_mounting", "into_imu_frame", "rotation_name", "rotvec", "turned"]
+           "TIME_OFFSET_STD", "Mounting", "axis_angle", "find_mounting", "find_mounting_steps", "into_imu_frame", "rotation_name",
+           "rotvec", "turned"]
 
 Array = NDArray[np.float64]
 
@@ -384,6 +386,12 @@ def find_mounting(blocks: GyroBlocks, offset: ArrayLike, matrix: ArrayLike, cova
                   gyro_scale_std: float = GYRO_SCALE_STD) -> Mounting:
     """The magnetometer's mounting rotation against the IMU from the gyro blocks under the calibration ``(offset,
     matrix)`` (module docstring). ``covariance``: the calibration's over the symmetric parameters (9, 9), or None."""
+    return drained(find_mounting_steps(blocks, offset, matrix, covariance, gyro_scale_std=gyro_scale_std))
+
+
+def find_mounting_steps(blocks: GyroBlocks, offset: ArrayLike, matrix: ArrayLike, covariance: ArrayLike | None = None,
+                        *, gyro_scale_std: float = GYRO_SCALE_STD) -> Steps[Mounting]:
+    """``find_mounting`` in steps (``steps``): one per rotation refined."""
     b = np.asarray(offset, dtype=np.float64)
     w = np.asarray(matrix, dtype=np.float64)
     if len(blocks) < MIN_BLOCKS or not float(np.sum(blocks.d * blocks.d)) > 0:
@@ -400,6 +408,8 @@ def find_mounting(blocks: GyroBlocks, offset: ArrayLike, matrix: ArrayLike, cova
     for k in (int(i) for i in order[:REFINE]):
         if refined and not unexplained[k] <= RIVAL * unexplained[refined[0]]:
             break  # far worse as it comes than the best: no rival (its own cost below stands in)
+        if refined:
+            yield
         refined.append(k)
         ref = _refine(pre, ROTATIONS[k], prior_info)
         near = _nearest(ref.r)

@@ -162,6 +162,7 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         self._fit_times, self._fit_points = np.zeros(0), np.zeros((0, 3))  # the buffer when the calibration was installed
         self._predicted: float | None = None
         self._figures_due = None  # a full fit's heading figures, computed when next read (evaluation.py)
+        self._sliced = None  # the fit in progress, a step per push (evaluation.py)
         self._indicators: Any = None
         self._last_rejection = ""
         self._last_reason = "waiting for samples"
@@ -185,7 +186,8 @@ class SensorCalibrator(ChangeDetection, Evaluation):
             self.reset(keep_calibration=True)
 
     def set_calibration(self, cal: Calibration | None) -> None:
-        """Replace the current calibration (None: forget it and start collecting)."""
+        """Replace the current calibration (None: forget it and start collecting); a fit in progress is dropped."""
+        self._sliced = None
         if cal is None:
             self._cal, self._w = None, ()
             self._state = State.COLLECTING
@@ -256,6 +258,10 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         Never raises, whatever ``t``, ``xyz`` and ``gyro`` are: bad samples are dropped and counted in
         ``dropped`` (see ``intake`` for the rules, the module docstring for the counting).
         """
+        if self._sliced is not None:  # a fit in progress: one step a push, whatever the sample (evaluation.py)
+            stepped = self._fit_step()
+            if stepped:
+                return stepped + self.push(t, xyz, gyro)
         intake = self._intake
         got = intake.take(t, xyz, gyro)
         if got is None:
@@ -383,7 +389,8 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         if self._buffer.push_finite(t, x, y, z):
             self.kept += 1
         self._since_eval += 1
-        if self._since_eval < (cfg.refit_every // 2 or 1):  # the cadence never asks for fewer (a cheap test first)
+        if self._sliced is not None or self._since_eval < (cfg.refit_every // 2 or 1):  # a fit in progress (push
+            return events  # steps it: evaluation.py); the cadence never asks for fewer (a cheap test first)
             return events
         every, interval = self._cadence()
         if self._since_eval >= every and t - self._last_eval_t >= interval:

@@ -16,6 +16,15 @@ themselves (a few ms each: the posterior's draws) are computed when a status fir
 re-binned about a new centre estimate only when the centre moved significantly (``_center_moved``): a ring's
 sphere fit leaves its axial component to the noise.
 
+**Fits in steps.** Inline, a fit runs one step a push (``model.steps``: a Levenberg-Marquardt solve, half a noise
+model, a mounting estimate), the first in the push whose evaluation started it, from the snapshot that push took;
+no other evaluation starts meanwhile, and the result is installed (or refused) in the push that runs its last step,
+with the stamp of the push that started it, unless the data went stale meanwhile (as in deferred mode). So no
+single sample pays for a whole fit: the longest push of ``scripts/bench_speed.py`` was a partial fit with the gyro,
+its noise model and its mounting in one push (up to 84 ms). The calibration is the same; it is installed a few
+samples later (a ground robot's fit with the gyro: up to about ten). A forced evaluation (``refit``) and deferred
+mode (``run_pending``) run a fit whole.
+
 It uses the calibrator's state (``_buffer``, ``_cal``, ``config``, ``validator``, the recent samples)
 and its helpers ``_install``, ``_set_state`` and ``_recent_points``.
 """
@@ -32,6 +41,7 @@ from numpy.typing import NDArray
 from ..model.calibration import Calibration
 from ..model.errors import MargCalError
 from ..model.fitting import fit
+from ..model.steps import Steps, drained
 from .config import PipelineConfig, apart, guard_rails, white_noise
 from .partial import PartialCalibration
 from .status import Event, EventKind, State, pct
@@ -76,6 +86,8 @@ class Evaluation(PartialCalibration):
     _full_eval_t: float = -math.inf
     _backoff: int = 0
     _figures_due: tuple[dict[str, Any], Calibration] | None = None  # an installed full fit whose figures are not read yet
+    _sliced: tuple[dict[str, Any], Steps[tuple[Calibration | None, str]]] | None = None
+    """Inline, the fit in progress: its job and its remaining steps, one run per push (**Fits in steps**)."""
 
     def refit(self, t: float | None = None) -> list[Event]:
         """Validate and fit now, ignoring the cadence (the refit service). The validator still decides."""
@@ -211,11 +223,35 @@ class Evaluation(PartialCalibration):
             if self.defer_evaluation:
                 self._pending = t
                 return []
+        self._sliced = None  # a forced evaluation replaces a fit in progress (its data are older)
         events, job = self._validate(t, force=force)
         if job is None:
             return events
         job["figures_later"] = True  # inline: the figures when next read (module docstring)
-        return events + self._fit_finish(job, self._fit_compute(job))
+        if force:
+            return events + self._fit_finish(job, self._fit_compute(job))
+        self._sliced = (job, self._fit_steps(job))
+        return events + self._fit_step()
+
+    def finish_fit(self) -> list[Event]:
+        """Run the fit in progress (**Fits in steps**) to its end now, its events: at the end of a recording, whose
+        last samples would otherwise leave it unfinished (``replay``)."""
+        if self._sliced is None:
+            return []
+        job, steps = self._sliced
+        self._sliced = None
+        return self._fit_finish(job, drained(steps))
+
+    def _fit_step(self) -> list[Event]:
+        """One step of the fit in progress (``_sliced``: module docstring, **Fits in steps**); its events when it ends."""
+        assert self._sliced is not None
+        job, steps = self._sliced
+        try:
+            next(steps)
+        except StopIteration as done:
+            self._sliced = None
+            return self._fit_finish(job, done.value)
+        return []
 
     def _validate(self, t: float, *, force: bool) -> tuple[list[Event], dict[str, Any] | None]:
         """Centre, indicators and the validator's verdict: the events, and the fit to run (or None)."""
@@ -286,13 +322,19 @@ class Evaluation(PartialCalibration):
 
     def _fit_compute(self, job: dict[str, Any]) -> tuple[Calibration | None, str]:
         """The fit and its guard rails on a snapshot: (calibration, "") or (None, the reason)."""
+        return drained(self._fit_steps(job))
+
+    def _fit_steps(self, job: dict[str, Any]) -> Steps[tuple[Calibration | None, str]]:
+        """``_fit_compute`` in steps (module docstring, **Fits in steps**)."""
         if job.get("partial"):
-            return self._partial_compute(job)
+            return (yield from self._partial_steps(job))
         if job.get("drift"):  # a stale calibration (change.py): re-centred, or refitted if that fits the fresh data better
             got = self._drift_compute(job)
-            got = self._drift_choice(job, got, self._full_compute(job)) if job["full"] else got
+            if job["full"]:
+                yield
+                got = self._drift_choice(job, got, (yield from self._full_steps(job)))
         else:
-            got = self._full_compute(job)
+            got = yield from self._full_steps(job)
         reason = self._misses_recent(job, got[0])
         return (None, reason) if reason else got
 
@@ -314,8 +356,8 @@ class Evaluation(PartialCalibration):
         return (f"median residual {got} % on the last {len(recent)} samples > the change threshold {limit} %: "
                 "the sensor may have changed (the change detector decides)")
 
-    def _full_compute(self, job: dict[str, Any]) -> tuple[Calibration | None, str]:
-        """The full fit of the buffer and its guard rails."""
+    def _full_steps(self, job: dict[str, Any]) -> Steps[tuple[Calibration | None, str]]:
+        """The full fit of the buffer and its guard rails (a step), then the mounting under it (another)."""
         cfg: PipelineConfig = job["config"]
         pts = job["points"]
         try:
@@ -331,8 +373,10 @@ class Evaluation(PartialCalibration):
                                  noise=job.get("noise", 0.0))
         except (ValueError, ArithmeticError) as exc:  # MargCalError is a ValueError, as is LinAlgError
             return None, f"fit failed: {exc}"
+        if not reason and job.get("gyro_rows"):
+            yield
         if not reason:
-            cal = self._full_mounting(job, cal)  # with gyro rows: the mounting, and the IMU's frame if asked (partial.py)
+            cal = yield from self._full_mounting(job, cal)  # with gyro rows: the mounting, the IMU frame if asked
         if not reason and not job.get("figures_later"):
             self._full_figures(job, cal)
         return (None, reason) if reason else (cal, "")

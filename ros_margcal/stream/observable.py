@@ -79,6 +79,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -89,7 +90,7 @@ from ..model.fitting_core import parameter_names
 from ..model.fitting_gyro import GyroBlocks
 from ..model.fitting_jackknife import jackknife_at, t_factor
 from ..model.fitting_level import circle_centre
-from ..model.fitting_prior import broad_prior, fit_with_prior, posterior_at
+from ..model.fitting_prior import broad_prior, fit_with_prior_steps, posterior_at
 from ..model.heading import (
     UNORDERED_SD_FACTOR,
     attitudes,
@@ -102,12 +103,13 @@ from ..model.heading import (
     with_offset_noise,
 )
 from ..model.mounting import Mounting
+from ..model.steps import Steps, drained
 from .config import PipelineConfig, apart, guard_rails
 
 __all__ = ["AZIMUTH_SECTORS", "DEFAULT_INCLINATION_DEG", "NEAR_LEVEL_NORM_REL_STD", "NEAR_LEVEL_TILT_DEG", "RING_AXIS_MAX_DEG",
            "RING_FLAT", "SIGMA_REUSE_TOLERANCE", "HeadingFigures", "PartialResult", "azimuth_coverage", "azimuth_sector",
-           "azimuth_sectors", "heading_figures", "partial_fit", "ring_centre", "ring_tilt_deg", "sphere_radius",
-           "tilt_seen_deg"]
+           "azimuth_sectors", "heading_figures", "partial_fit", "partial_fit_steps", "ring_centre", "ring_tilt_deg",
+           "sphere_radius", "tilt_seen_deg"]
 
 Array = NDArray[np.float64]
 
@@ -346,13 +348,20 @@ def heading_figures(cal: Calibration, points: Array, cfg: PipelineConfig) -> tup
         return None
 
 
-def partial_fit(series: Array, prior: Calibration | None, cfg: PipelineConfig, *, recent: Array,
-                spread: Array | None = None,
-                current: Calibration | None, stamp: float, sensor: str,
-                current_heading: float | None = None, sigma: float | None = None, max_iter: int = 200,
-                start: Calibration | None = None, sigma_tolerance: float = SIGMA_REUSE_TOLERANCE,
-                gyro: GyroBlocks | None = None, level_ok: bool = True) -> PartialResult:
-    """The MAP fit of ``series`` (time-ordered raw samples) from ``prior`` and its verdict (module docstring).
+def partial_fit(series: Array, prior: Calibration | None, cfg: PipelineConfig, **kwargs: Any) -> PartialResult:
+    """The MAP fit of ``series`` (time-ordered raw samples) from ``prior`` and its verdict: ``partial_fit_steps`` run
+    to the end (the same arguments)."""
+    return drained(partial_fit_steps(series, prior, cfg, **kwargs))
+
+
+def partial_fit_steps(series: Array, prior: Calibration | None, cfg: PipelineConfig, *, recent: Array,
+                      spread: Array | None = None,
+                      current: Calibration | None, stamp: float, sensor: str,
+                      current_heading: float | None = None, sigma: float | None = None, max_iter: int = 200,
+                      start: Calibration | None = None, sigma_tolerance: float = SIGMA_REUSE_TOLERANCE,
+                      gyro: GyroBlocks | None = None, level_ok: bool = True) -> Steps[PartialResult]:
+    """The MAP fit of ``series`` (time-ordered raw samples) from ``prior`` and its verdict (module docstring), in the
+    steps of ``fitting_prior.fit_with_prior_steps`` and one for the heading figures.
 
     ``sigma``: the residual noise of the previous fit on the same kind of data, taken as given (one solve
     per start instead of three: ~5x cheaper) unless the residuals at the solution disagree by more than
@@ -383,9 +392,12 @@ def partial_fit(series: Array, prior: Calibration | None, cfg: PipelineConfig, *
         norm_std = (NEAR_LEVEL_NORM_REL_STD if level else NORM_REL_STD) if (
             sensor == "mag" and not cfg.reference_norm and kind == "broad") else 0.0
         for noise in (sigma, None) if sigma is not None else (None,):
-            pf = fit_with_prior(series, prior, inflate=inflate, stamp=stamp, time_ordered=True, norm_rel_std=norm_std,
-                                sigma=noise, max_iter=max_iter, start=None if level else start, spread=spread, gyro=gyro,
-                                gyro_scale_std=cfg.gyro_scale_std, level=level)
+            if noise is None and sigma is not None:
+                yield
+            pf = yield from fit_with_prior_steps(series, prior, inflate=inflate, stamp=stamp, time_ordered=True,
+                                                 norm_rel_std=norm_std, sigma=noise, max_iter=max_iter,
+                                                 start=None if level else start, spread=spread, gyro=gyro,
+                                                 gyro_scale_std=cfg.gyro_scale_std, level=level)
             if noise is None or abs(pf.residual_sigma / noise - 1.0) <= sigma_tolerance:
                 break  # the given noise fits the residuals (else: again with the noise estimated)
         cal = pf.calibration
@@ -411,6 +423,7 @@ def partial_fit(series: Array, prior: Calibration | None, cfg: PipelineConfig, *
                                  f"body z axis < {100 * cfg.partial_min_azimuth:.0f} %: not a ground robot's turns",
                                  azimuth=azimuth, sigma=pf.residual_sigma, gyro_explained=pf.gyro_explained,
                                  gyro_used=pf.gyro_used, gyro_frame=pf.gyro_frame, level=pf.level)
+        yield  # the heading figures next
         inc = _inclination(cfg, cal, None if rich else series)  # "z up on average" holds for a ring, not a tumble
         sigma = pf.residual_sigma
         # slow noise longer than the series, which the offset absorbs and no residual shows (model.heading)

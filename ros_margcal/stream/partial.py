@@ -57,7 +57,8 @@ from ..model.fitting_geometric import block_means
 from ..model.fitting_gyro import MIN_EXPLAINED, GyroBlocks, gyro_blocks
 from ..model.fitting_level import LEVEL_TILT_STD_DEG
 from ..model.heading import format_bound
-from ..model.mounting import Mounting, find_mounting, into_imu_frame, turned
+from ..model.mounting import Mounting, find_mounting_steps, into_imu_frame, turned
+from ..model.steps import Steps
 from .config import PipelineConfig
 from .observable import (
     AZIMUTH_SECTORS,
@@ -68,7 +69,7 @@ from .observable import (
     azimuth_sector,
     azimuth_sectors,
     heading_figures,
-    partial_fit,
+    partial_fit_steps,
     ring_centre,
 )
 
@@ -203,6 +204,12 @@ class PartialCalibration:
             if not job.get("early") and job.get("mount_applied") is self._mount_applied:  # (an early fit's quarter
                 self._watch_azimuths(res.calibration, job.get("series"))  # comes in seconds; a new turn: other axes)
         self._partial_growth = min(max(grow, self.PARTIAL_GROWTH), self.PARTIAL_GROWTH_MAX)
+        # the series points that came while the fit ran in steps (evaluation.py), watched as if from its snapshot
+        since = min(self._series_count - job.get("series_count", self._series_count), len(self._series))
+        for px, py, pz, _ in itertools.islice(self._series, len(self._series) - since, None):
+            if self._az_watch is None:
+                break
+            self._watch_point(px, py, pz)
 
     def _watch_azimuths(self, cal: Calibration | None, series: Array | None) -> None:
         """After a fit refused on the azimuths turned through: watch the new series points' azimuths under
@@ -300,15 +307,19 @@ class PartialCalibration:
             series, spread = block_means(self._recent_v, -(-len(self._recent_v) // self.EARLY_POINTS))
             series = series if self._mount_applied is None else series @ self._mount_applied.T
         rows = [] if early or not self._gyro_buf else list(self._gyro_buf)  # a copy of references: cheap
-        return {**job, "partial": True, "series": series, "spread": spread, "prior": self._prior, "early": early,
+        return {**job, "partial": True, "series": series, "series_count": self._series_count, "spread": spread,
+                "prior": self._prior, "early": early,
                 "gyro_rows": rows, "gyro_seen": bool(self._gyro_buf), "mount_applied": self._mount_applied,
                 "mount_prev": None if self._mount_due() else self._mounting,
                 "sigma": self._early_sigma if early else self._partial_sigma,
                 "start": None if (early or self._changed) else self._partial_start,  # a sensor change: every start
                 "current_heading": None if cur is None else cur.heading_seen_deg}
 
-    def _partial_compute(self, job: dict[str, Any]) -> tuple[Calibration | None, str]:
+    def _partial_steps(self, job: dict[str, Any]) -> Steps[tuple[Calibration | None, str]]:
+        """The partial fit of a job and its verdict, in steps (``observable.partial_fit_steps``; the mounting one more)."""
         gyro = self._gyro_blocks(job["gyro_rows"], job["config"]) if job["gyro_rows"] else None
+        if gyro is not None:
+            yield
         job["gyro_short"] = bool(job["gyro_rows"]) and gyro is None
         q = job.get("mount_applied")  # calibrate_into_imu_frame: the series and rows are turned by q, so is the rest
         prior, current, recent = job["prior"], job["current"], job["recent"]
@@ -316,18 +327,19 @@ class PartialCalibration:
             prior = None if prior is None else turned(prior, q)
             current = None if current is None else turned(current, q)
             recent = np.asarray(recent, dtype=np.float64) @ q.T
-        res = partial_fit(job["series"], prior, job["config"], spread=job["spread"], recent=recent, gyro=gyro,
-                          current=current,
-                          stamp=job["t"], sensor=self.sensor, current_heading=job["current_heading"], sigma=job["sigma"],
-                          max_iter=self.EARLY_MAX_ITER if job["early"] else job["config"].max_iter, start=job["start"],
-                          sigma_tolerance=math.inf if job["early"] else SIGMA_REUSE_TOLERANCE,
-                          level_ok=gyro is not None or not job["gyro_seen"])
+        res = yield from partial_fit_steps(
+            job["series"], prior, job["config"], spread=job["spread"], recent=recent, gyro=gyro, current=current,
+            stamp=job["t"], sensor=self.sensor, current_heading=job["current_heading"], sigma=job["sigma"],
+            max_iter=self.EARLY_MAX_ITER if job["early"] else job["config"].max_iter, start=job["start"],
+            sigma_tolerance=math.inf if job["early"] else SIGMA_REUSE_TOLERANCE,
+            level_ok=gyro is not None or not job["gyro_seen"])
         job["result"] = res
         found, prev = None, job.get("mount_prev")
         if prev is not None:  # decided, and not due again: as it was, on the readings as turned now
             found = prev if q is None else prev.after_turn(q.T)
         elif gyro is not None and res.calibration is not None and not job["early"]:
-            found = _mounting(gyro, res.calibration, job["config"])
+            yield
+            found = yield from _mounting(gyro, res.calibration, job["config"])
             job["mounting"] = found if q is None else found.after_turn(q)
         if res.reason or res.calibration is None:
             return None, res.reason or "partial fit failed"
@@ -386,7 +398,7 @@ class PartialCalibration:
         if self.sensor == "mag":
             job["figures"] = heading_figures(job.get("mag_frame_cal", cal), job["points"], job["config"])
 
-    def _full_mounting(self, job: dict[str, Any], cal: Calibration) -> Calibration:
+    def _full_mounting(self, job: dict[str, Any], cal: Calibration) -> Steps[Calibration]:
         """A full magnetometer fit with the job's gyro rows (``gyro_rows``, as the partial job's): the mounting under it
         (``job["mounting"]``) and, with ``calibrate_into_imu_frame`` and a decided rotation, the calibration to publish,
         in the IMU's frame (the fit itself kept as ``job["mag_frame_cal"]``), off-lock."""
@@ -399,7 +411,7 @@ class PartialCalibration:
             job["mag_frame_cal"] = cal
             return into_imu_frame(cal, kept)
         q = job.get("mount_applied")  # the rows' readings are turned by q: so is the calibration judged on them
-        found = _mounting(gyro, cal if q is None else turned(cal, q), cfg)
+        found = yield from _mounting(gyro, cal if q is None else turned(cal, q), cfg)
         job["mounting"] = found if q is None else found.after_turn(q)
         mount: Mounting = job["mounting"]
         if not cfg.calibrate_into_imu_frame or mount.rotation is None:
@@ -493,10 +505,10 @@ class PartialCalibration:
         }
 
 
-def _mounting(blocks: GyroBlocks, cal: Calibration, cfg: PipelineConfig) -> Mounting:
-    """The mounting under a series fit's calibration (its covariance when over the symmetric parameters)."""
+def _mounting(blocks: GyroBlocks, cal: Calibration, cfg: PipelineConfig) -> Steps[Mounting]:
+    """The mounting under a series fit's calibration (its covariance when over the symmetric parameters), in steps."""
     cov = cal.covariance if tuple(cal.parameter_names) == SYM_NAMES else None
-    return find_mounting(blocks, cal.offset, cal.matrix, cov, gyro_scale_std=cfg.gyro_scale_std)
+    return find_mounting_steps(blocks, cal.offset, cal.matrix, cov, gyro_scale_std=cfg.gyro_scale_std)
 
 
 def _published(cal: Calibration, found: Mounting | None, q: Array | None, cfg: PipelineConfig) -> Calibration:

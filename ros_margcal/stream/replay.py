@@ -199,6 +199,11 @@ def replay(path: Path, *, sensor: str | None = None, unit: str | None = None, st
             n += 1
             if n % 1000 == 0:
                 bar.set_postfix_str(f"t = {t:.1f} s", refresh=False)
+        for name, cal in cals.items():  # a fit the last samples started, run to its end (stream/evaluation.py)
+            for ev in cal.finish_fit():
+                timeline.append(_event_entry(ev, name))
+                if on_line:
+                    emit(f"{ev.t:9.2f} s  {name:5s}  {ev.kind.value:10s} {ev.message}")
     if n == 0:  # as the offline readers do: an empty recording is an error, not "final state after 0 messages"
         msg = f"{path} holds no sensor_msgs/Imu or MagneticField messages (or CSV rows) to replay"
         raise RecordingError(msg)

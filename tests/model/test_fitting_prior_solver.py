@@ -15,6 +15,7 @@ from ros_margcal.model.errors import DegenerateDataError
 from ros_margcal.model.fitting_core import pack
 from ros_margcal.model.fitting_prior import NAMES, broad_prior, fit_with_prior, posterior_at
 from ros_margcal.model.heading import heading_p95
+from ros_margcal.model.steps import drained
 from ros_margcal.sim.simulation import directions, random_sensor, simulate
 
 
@@ -65,7 +66,7 @@ def test_the_normal_equation_lm_reaches_minpacks_minimum(independent: ModuleType
     chol = np.linalg.cholesky(info0).T
     z = np.ascontiguousarray(pts.T)
     s = fit_with_prior(pts, prior).sigma
-    ours, _ = fp._lm(z, theta0.copy(), theta0, info0, 48e-6, s, 500)
+    ours, _ = drained(fp._lm(z, theta0.copy(), theta0, info0, 48e-6, s, 500))
 
     def fun(th: np.ndarray) -> np.ndarray:
         return np.r_[fg.geometric(z, th, 48e-6)[0] / s, chol @ (th - theta0)]

@@ -21,7 +21,7 @@ from ros_margcal.stream.evaluation import Evaluation
 from ros_margcal.stream.intake import _vector3
 from ros_margcal.stream.partial import PartialCalibration
 
-REAL_PARTIAL_FIT = partial_module.partial_fit
+REAL_PARTIAL_FIT = partial_module.partial_fit_steps
 
 
 @pytest.fixture(scope="module")
@@ -35,12 +35,12 @@ def _run(rec: dict[str, Any], monkeypatch: pytest.MonkeyPatch) -> tuple[SensorCa
     calls: list[tuple[float, Any]] = []
     real = REAL_PARTIAL_FIT
 
-    def spy(series: Any, *args: Any, **kw: Any) -> Any:
-        res = real(series, *args, **kw)
+    def spy(series: Any, *args: Any, **kw: Any) -> Any:  # the partial fit runs in steps (stream.evaluation)
+        res = yield from real(series, *args, **kw)
         calls.append((kw["stamp"], res))
         return res
 
-    monkeypatch.setattr(partial_module, "partial_fit", spy)
+    monkeypatch.setattr(partial_module, "partial_fit_steps", spy)
     cal, first = SensorCalibrator("mag"), None
     for t, v in zip(rec["t"].tolist(), rec["xyz"], strict=True):
         if any(e.kind is EventKind.CALIBRATED for e in cal.push(t, v)) and first is None:
