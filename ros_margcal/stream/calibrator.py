@@ -260,7 +260,7 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         """
         if self._sliced is not None:  # a fit in progress: one step a push, whatever the sample (evaluation.py)
             stepped = self._fit_step()
-            if stepped:
+            if stepped:  # it ended: its events first, then this sample under what it installed (no fit in progress now)
                 return stepped + self.push(t, xyz, gyro)
         intake = self._intake
         got = intake.take(t, xyz, gyro)
