@@ -23,8 +23,7 @@ with the stamp of the push that started it, unless the data went stale meanwhile
 single sample pays for a whole fit: the longest push of ``scripts/bench_speed.py`` was a partial fit with the gyro,
 its noise model and its mounting in one push (up to 84 ms). The calibration is the same; it is installed a few
 samples later (on bench_speed's streams 5-6 pushes at the median, at most 21: 0.4 s at 50 Hz). A forced evaluation
-(``refit``) and deferred
-mode (``run_pending``) run a fit whole.
+(``refit``) and deferred mode (``run_pending``) run a fit whole.
 
 It uses the calibrator's state (``_buffer``, ``_cal``, ``config``, ``validator``, the recent samples)
 and its helpers ``_install``, ``_set_state`` and ``_recent_points``.
