@@ -5,8 +5,9 @@ stalls every sample callback, and a best-effort queue at 100-1000 Hz overflows. 
 per-message work (conversion, stamp choice, publishing the calibrated message with the calibration it
 holds) and hands the samples, in batches, to ``serve`` running in a worker process, which owns one
 ``SensorCalibrator`` per sensor and runs the whole corridor on them exactly as ``margcal replay`` does
-(evaluations inline: the same samples give the same calibrations), pairing each magnetometer sample with
-the Imu rate nearest in stamp (``pairing.RatePairing``).
+(evaluations inline, a fit one step a sample: the same samples give the same calibrations; a fit in progress when
+the stream stops runs to its end after ``_IDLE_FINISH_S``), pairing each magnetometer sample with the Imu rate
+nearest in stamp (``pairing.RatePairing``).
 
 ``CalibrationWorker`` is the node's handle: ``send`` queues samples (never blocks), ``request`` a command
 (``reset``, ``refit``, ``configure``), ``poll`` returns what came back without waiting:
@@ -51,6 +52,9 @@ Sample = tuple[str, float, float, float, float, float, float, float, str, float]
 (``time.monotonic()`` when the callback ran)."""
 
 _POLL_S = 0.02  # the worker's wait for input, s: how late a held sample or a status may be at most
+_IDLE_FINISH_S = 1.0
+"""No sample for this long: the stream stopped, and a fit in progress runs to its end (``_Calibrators.idle``). Not
+sooner: between batches of a flowing stream the fits step with the samples, as in replay (the same calibrations)."""
 
 
 def _context() -> Any:
@@ -96,6 +100,13 @@ class _Calibrators:
             self.restamp.discard(sensor)
             if c.calibration is not None and c.calibration is self.sent[sensor]:
                 c.set_calibration(c.calibration.replace(stamp=c.status().t))
+
+    def idle(self) -> None:
+        """The stream stopped (``_IDLE_FINISH_S``): a fit in progress runs to its end now (``stream.evaluation``,
+        **Fits in steps**: it steps with the samples, and would wait for the next one)."""
+        for c in self.cals.values():
+            for ev in c.finish_fit():
+                self.event(ev)
 
     def event(self, ev: Any) -> None:
         self.outbox.put(("event", ev))
@@ -159,6 +170,7 @@ def serve(inbox: Any, outbox: Any, specs: dict[str, tuple[PipelineConfig, Calibr
     # to 59 ms (scripts/bench_speed.py --freeze)
     gc.freeze()
     next_status = time.monotonic() + status_period_s
+    last_input = time.monotonic()
     while True:
         try:
             msg = inbox.get(timeout=_POLL_S)
@@ -172,8 +184,11 @@ def serve(inbox: Any, outbox: Any, specs: dict[str, tuple[PipelineConfig, Calibr
             kind = None if msg is None else msg[0]
             if kind == "stop":
                 return
+            if kind is None and time.monotonic() - last_input >= _IDLE_FINISH_S:
+                cals.idle()
             if kind == "samples":
                 cals.samples(msg[1])
+                last_input = time.monotonic()
             elif kind == "view":
                 cals.view()
             elif kind == "request":

@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from conftest import INDEPENDENT
 
 from ros_margcal.ros.worker import CalibrationWorker, _Calibrators
 from ros_margcal.sim import simulation as sim
@@ -159,3 +160,29 @@ def test_a_calibration_from_the_file_ages_from_the_first_sample(stream: sim.Reco
     cals.command("refit", ())
     st = cals.cals["mag"].status()
     assert st.state.value == "calibrated" and st.age is not None and st.age < 20.0, (st.age, st.message)
+
+
+def test_a_fit_in_progress_when_the_stream_stops_is_finished(worker: CalibrationWorker) -> None:
+    """Fits step with the samples (stream.evaluation, Fits in steps): a stream that stops while one is in progress gets
+    its result once the worker has been idle for _IDLE_FINISH_S, the very calibration replay's finish_fit gives."""
+    ring = INDEPENDENT.generate("mag", "ground", duration_s=120.0, rate_hz=50.0, seed=23, tilt_deg=5.0,
+                                symmetric_soft_iron=True, hard_iron_mag=30e-6)  # partial fits: several steps each
+    stream = sim.Recording(t=ring["t"] + 1000.0, raw=ring["xyz"])
+    probe, end = SensorCalibrator("mag"), None
+    times = stream.t.tolist()
+    for t, v in zip(times, stream.raw, strict=True):  # the first fit that calibrates over several pushes
+        done = [e for e in probe.push(t, v) if e.kind.value == "calibrated"]
+        if done and done[0].t < t:  # stamped with the push that started it
+            end = times.index(done[0].t) + 1  # the stream stops in that push
+            break
+    assert end is not None
+    ref = SensorCalibrator("mag")
+    for t, v in zip(stream.t[:end].tolist(), stream.raw[:end], strict=True):
+        ref.push(t, v)
+    assert ref._sliced is not None and ref.calibration is None
+    assert any(e.kind.value == "calibrated" for e in ref.finish_fit()) and ref.calibration is not None
+    inbox = Inbox(worker)
+    worker.send(_samples(sim.Recording(t=stream.t[:end], raw=stream.raw[:end])))
+    assert inbox.wait(lambda items: any(x[0] == "calibration" and x[2] is not None for x in items), timeout_s=30.0)
+    got = next(x[2] for x in inbox.items if x[0] == "calibration" and x[2] is not None)
+    assert got.allclose(ref.calibration, rtol=1e-9)
