@@ -51,6 +51,12 @@ assumption off for such a mount, and a gyro in the magnetometer's frame makes it
 data (a tumble's first seconds, on the recent samples while the series is short) is
 published when its predicted heading p95 at ±30° tilt is at most ``early_heading_p95_deg`` (1°): the
 covariance says when the data suffice, instead of the validator's coverage rule and a fixed cadence.
+An early fit of the first seconds that was still a ring or band (tilted at most ``partial_max_tilt_deg``) is
+published on its figure at the tilt seen, as any partial fit; while the ±30° figure of such an early calibration
+exceeds ``early_heading_p95_deg`` and the series is short, early fits go on, each replacing it when its figure is
+lower (as any partial refit; one of motion tilted past a ring's is judged on its ±30° figure, within
+``early_heading_p95_deg``): a tumble that began flat otherwise kept its first calibration, 1.4° off at 30°, until
+the full path's fit at 9 s.
 The full path then runs as before; its fits replace the early one without the not-worse check against
 it (``partial.PartialCalibration``), so the later calibrations are the full path's.
 A refit replaces a partial
@@ -359,7 +365,7 @@ def partial_fit_steps(series: Array, prior: Calibration | None, cfg: PipelineCon
                       current: Calibration | None, stamp: float, sensor: str,
                       current_heading: float | None = None, sigma: float | None = None, max_iter: int = 200,
                       start: Calibration | None = None, sigma_tolerance: float = SIGMA_REUSE_TOLERANCE,
-                      gyro: GyroBlocks | None = None, level_ok: bool = True) -> Steps[PartialResult]:
+                      gyro: GyroBlocks | None = None, level_ok: bool = True, early: bool = False) -> Steps[PartialResult]:
     """The MAP fit of ``series`` (time-ordered raw samples) from ``prior`` and its verdict (module docstring), in the
     steps of ``fitting_prior.fit_with_prior_steps`` and one for the heading figures.
 
@@ -371,7 +377,8 @@ def partial_fit_steps(series: Array, prior: Calibration | None, cfg: PipelineCon
     ``spread``: when ``series`` holds block means, each block's spread (``fit_with_prior(spread=...)``).
     ``gyro``: blocks of the raw samples with their rates (``fit_with_prior(gyro=...)``). ``level_ok``: a near-level
     ring without gyro blocks may be held level (false while a gyro's rates arrive but fill too few blocks yet:
-    the gyro, not the assumption, should decide; a mounting tilt makes the assumption publish 5-8 deg)."""
+    the gyro, not the assumption, should decide; a mounting tilt makes the assumption publish 5-8 deg). ``early``: an
+    early fit refining the current calibration (an early fit's), which may publish on rich motion as without one."""
     kind = "previous" if prior is not None else "broad"
     try:
         if prior is not None and (prior.covariance is None or tuple(prior.parameter_names) != SYM_NAMES):
@@ -409,7 +416,7 @@ def partial_fit_steps(series: Array, prior: Calibration | None, cfg: PipelineCon
         tilt = tilt_seen_deg(cal, series)
         rich = not tilt <= cfg.partial_max_tilt_deg
         # the cheap verdicts first: a fit they refuse needs no norm uncertainty and no heading figures
-        if rich and not (cfg.early_fit and current is None):
+        if rich and not (cfg.early_fit and (current is None or early)):
             shown, limit = apart(tilt, cfg.partial_max_tilt_deg)
             return PartialResult(cal, pf.updated, pf.from_prior, kind, tilt, math.inf, None,
                                  f"partial fit: the data are tilted up to {shown} deg > {limit} "

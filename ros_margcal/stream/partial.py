@@ -13,7 +13,8 @@ estimate and the decision live in ``observable`` (see its docstring). Here:
 - the prior: the last *full* calibration accepted or loaded (with a covariance over the symmetric
   parameters; a full fit gets one from ``observable.heading_figures``), else the broad prior;
 - the early fit on rich motion (``observable``): before the first calibration, on the recent samples
-  (``recent_samples``, all of them while uncalibrated) while the series is shorter than ``min_points``;
+  (``recent_samples``, all of them while uncalibrated) while the series is shorter than ``min_points``, also
+  after an early calibration whose ±30° figure is above ``early_heading_p95_deg`` (``_early_open``);
 - when a partial fit is due: the full validator refused, ``partial_fit`` is on, there is no
   calibration, a sensor change is pending, or the current one is partial; and the series grew since
   the last attempt by a quarter (``PARTIAL_GROWTH``), or by what that attempt's refusal asks for (up to
@@ -139,6 +140,7 @@ class PartialCalibration:
         self._figures: HeadingFigures | None = None
         self._prior: Calibration | None = None
         self._early_close = False  # the last early fit's predicted heading error was within EARLY_CLOSE x its limit
+        self._early_installed = False  # the current calibration is an early fit's (``_early_open``)
         self._partial_growth = self.PARTIAL_GROWTH  # share of the series to wait for before the next partial fit
         self._early_sigma: float | None = None  # the residual noise of the last early fit
         self._partial_sigma: float | None = None  # the residual noise of the last fit on the series ...
@@ -164,7 +166,7 @@ class PartialCalibration:
         cfg = self.config
         if self._cal is not None and not self._changed and self._partial is None:
             every, interval = cfg.refit_every, cfg.recheck_interval_s
-        elif self._cal is None and self._early_close and cfg.early_fit and cfg.partial_fit:
+        elif self._early_open() and self._early_close and cfg.early_fit and cfg.partial_fit:
             every, interval = max(1, cfg.refit_every // 2), min(cfg.refit_min_interval_s, cfg.early_interval_s)
         else:
             every, interval = cfg.refit_every, cfg.refit_min_interval_s
@@ -286,7 +288,7 @@ class PartialCalibration:
     def _partial_wanted(self) -> bool:
         """The full validator refused: is a partial fit worth a try now (module docstring)?"""
         cfg = self.config
-        early = cfg.early_fit and self._cal is None and len(self._recent_v) >= cfg.min_points
+        early = cfg.early_fit and self._early_open() and len(self._recent_v) >= cfg.min_points
         if not cfg.partial_fit or (len(self._series) < cfg.min_points and not early):
             return False
         if not (self._cal is None or self._changed or self._partial is not None):
@@ -295,6 +297,19 @@ class PartialCalibration:
         if early and self._early_close:  # about to pass: the cadence (early_interval_s) decides, not the growth
             return self._series_at_attempt < 0 or grown >= 1
         return self._series_at_attempt < 0 or grown >= max(1, self._partial_growth * self._series_len_at_attempt)
+
+    def _early_open(self) -> bool:
+        """May an early fit run: uncalibrated, or the current calibration an early fit's whose ±30° figure is above
+        ``early_heading_p95_deg`` (a ring's first seconds, published on the figure at the tilt seen: the tumble that
+        follows would otherwise wait for the full path)?"""
+        if self._cal is None:
+            return True
+        p = self._partial
+        if not (self._early_installed and p is not None and not self._changed):
+            return False
+        if len(self._series) >= self.config.min_points:
+            return False  # the series fits take over (a ring's early fit: its ±30° figure stays the prior's)
+        return not (p.figures is not None and p.figures.tilt30_deg <= self.config.early_heading_p95_deg)
 
     def _partial_job(self, job: dict[str, Any]) -> dict[str, Any]:
         """Turn a fit job into a partial one (the series and the prior join the snapshot)."""
@@ -332,7 +347,7 @@ class PartialCalibration:
             stamp=job["t"], sensor=self.sensor, current_heading=job["current_heading"], sigma=job["sigma"],
             max_iter=self.EARLY_MAX_ITER if job["early"] else job["config"].max_iter, start=job["start"],
             sigma_tolerance=math.inf if job["early"] else SIGMA_REUSE_TOLERANCE,
-            level_ok=gyro is not None or not job["gyro_seen"])
+            level_ok=gyro is not None or not job["gyro_seen"], early=job["early"])
         job["result"] = res
         found, prev = None, job.get("mount_prev")
         if prev is not None:  # decided, and not due again: as it was, on the readings as turned now
@@ -425,6 +440,8 @@ class PartialCalibration:
             self._partial_noise(job)
             res: PartialResult = job["result"]
             self._partial, self._partial_note = res, ""
+            self._early_installed = bool(job.get("early"))
+            self._early_close = self._early_installed  # refined at the early cadence while it is open (_early_open)
             self._partial_growth = self.REFIT_GROWTH  # a refit once the series grew by this share (module docstring)
             self._figures = res.figures
             return (f"; partial: updated {','.join(res.updated) or 'none'}, from the {res.prior_kind} prior "
