@@ -61,7 +61,9 @@ The full path then runs as before; its fits replace the early one without the no
 it (``partial.PartialCalibration``), so the later calibrations are the full path's.
 A refit replaces a partial
 calibration when its predicted heading figure at the tilt seen is lower (instead of the not-worse check
-on the last few seconds' residual, which noise decides as often as the data). The level and ±30° figures go
+on the last few seconds' residual, which noise decides as often as the data); a refit whose data show more tilt
+is judged at the tilt the current calibration was judged at (like with like: more tilt alone raises the figure, and
+a ±20° band's refit on 50 % more data was refused for it). The level and ±30° figures go
 into the status, so a user sees that a calibration good when level is poor once the robot tilts past
 what it covered. They are computed when first read (``HeadingFigures``: a few ms each, the posterior's draws):
 a ring's fit is judged on the figure at the tilt seen alone, so a refused refit pays for no other figure, and an
@@ -363,7 +365,8 @@ def partial_fit(series: Array, prior: Calibration | None, cfg: PipelineConfig, *
 def partial_fit_steps(series: Array, prior: Calibration | None, cfg: PipelineConfig, *, recent: Array,
                       spread: Array | None = None,
                       current: Calibration | None, stamp: float, sensor: str,
-                      current_heading: float | None = None, sigma: float | None = None, max_iter: int = 200,
+                      current_heading: float | None = None, current_tilt: float | None = None,
+                      sigma: float | None = None, max_iter: int = 200,
                       start: Calibration | None = None, sigma_tolerance: float = SIGMA_REUSE_TOLERANCE,
                       gyro: GyroBlocks | None = None, level_ok: bool = True, early: bool = False) -> Steps[PartialResult]:
     """The MAP fit of ``series`` (time-ordered raw samples) from ``prior`` and its verdict (module docstring), in the
@@ -374,6 +377,8 @@ def partial_fit_steps(series: Array, prior: Calibration | None, cfg: PipelineCon
     ``sigma_tolerance``, when the fit is repeated with the noise estimated. ``max_iter``: evaluations
     per solve (an early fit's start that needs more is in a flat, wrong valley: another start wins).
     ``start``: the previous fit on the same series, the one start of the MAP fit (``fit_with_prior``).
+    ``current_heading``, ``current_tilt``: the current partial calibration's predicted heading p95 and the tilt it was
+    judged at; a ring's refit is compared with it at that tilt (module docstring).
     ``spread``: when ``series`` holds block means, each block's spread (``fit_with_prior(spread=...)``).
     ``gyro``: blocks of the raw samples with their rates (``fit_with_prior(gyro=...)``). ``level_ok``: a near-level
     ring without gyro blocks may be held level (false while a gyro's rates arrive but fill too few blocks yet:
@@ -437,6 +442,11 @@ def partial_fit_steps(series: Array, prior: Calibration | None, cfg: PipelineCon
         bounded = with_offset_noise(cal, sigma) if sigma is not None and math.isfinite(sigma) and sigma >= 0 else cal
         figs = _figures(bounded, inc)
         seen = figs.tilt30_deg if rich else heading_p95_quantile(bounded, tilt_deg=tilt, inclination=inc)
+        like = seen  # the refit's figure at the tilt the current calibration was judged at (like with like)
+        if (not rich and current_heading is not None and current_tilt is not None and tilt > current_tilt
+                and not seen < current_heading):
+            yield
+            like = heading_p95_quantile(bounded, tilt_deg=current_tilt, inclination=inc)
     except (MargCalError, ValueError, ArithmeticError) as exc:
         return PartialResult(None, (), SYM_NAMES, kind, math.nan, math.inf, None, f"partial fit failed: {exc}")
     limit = cfg.early_heading_p95_deg if rich else cfg.max_heading_p95_deg
@@ -446,8 +456,9 @@ def partial_fit_steps(series: Array, prior: Calibration | None, cfg: PipelineCon
         reason = (f"partial fit: predicted heading error p95 {where} {format_bound(seen)} > {limit:g} deg" if math.isfinite(seen)
                   else f"partial fit: predicted heading error {where} not determined (no finite covariance)")
         over = limit
-    elif current_heading is not None and not seen < current_heading:
-        reason = (f"partial refit: predicted heading error p95 {format_bound(seen)} not below the current "
+    elif current_heading is not None and not like < current_heading:
+        at = "" if like is seen else f" ({format_bound(like)} at its {current_tilt:.1f} deg of tilt)"
+        reason = (f"partial refit: predicted heading error p95 {format_bound(seen)}{at} not below the current "
                   f"calibration's {format_bound(current_heading)}")
     else:
         # a partial refit replaces a partial calibration on its predicted heading (above), not on the

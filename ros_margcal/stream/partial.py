@@ -328,7 +328,8 @@ class PartialCalibration:
                 "mount_prev": None if self._mount_due() else self._mounting,
                 "sigma": self._early_sigma if early else self._partial_sigma,
                 "start": None if (early or self._changed) else self._partial_start,  # a sensor change: every start
-                "current_heading": None if cur is None else cur.heading_seen_deg}
+                "current_heading": None if cur is None else cur.heading_seen_deg,
+                "current_tilt": None if cur is None else cur.tilt_seen_deg}
 
     def _partial_steps(self, job: dict[str, Any]) -> Steps[tuple[Calibration | None, str]]:
         """The partial fit of a job and its verdict, in steps (``observable.partial_fit_steps``; the mounting one more)."""
@@ -344,7 +345,8 @@ class PartialCalibration:
             recent = np.asarray(recent, dtype=np.float64) @ q.T
         res = yield from partial_fit_steps(
             job["series"], prior, job["config"], spread=job["spread"], recent=recent, gyro=gyro, current=current,
-            stamp=job["t"], sensor=self.sensor, current_heading=job["current_heading"], sigma=job["sigma"],
+            stamp=job["t"], sensor=self.sensor, current_heading=job["current_heading"],
+            current_tilt=job.get("current_tilt"), sigma=job["sigma"],
             max_iter=self.EARLY_MAX_ITER if job["early"] else job["config"].max_iter, start=job["start"],
             sigma_tolerance=math.inf if job["early"] else SIGMA_REUSE_TOLERANCE,
             level_ok=gyro is not None or not job["gyro_seen"], early=job["early"])
