@@ -14,8 +14,11 @@ from typing import Any
 import pytest
 from conftest import INDEPENDENT
 
+import ros_margcal.stream.partial as partial_module
 from ros_margcal.stream.calibrator import EventKind, PipelineConfig, SensorCalibrator
 from ros_margcal.stream.partial import PartialCalibration
+
+REAL = partial_module.partial_fit_steps
 
 
 @pytest.fixture(scope="module")
@@ -54,3 +57,23 @@ def test_an_early_ring_calibration_is_refined_by_early_fits(tumble: dict[str, An
     before = _published(tumble)
     assert before[0][0] == first_t
     assert _first_good(before) > 8.0  # 8.98 s: the full path's first fit
+
+
+def test_no_early_fit_runs_once_the_full_path_calibrated(tumble: dict[str, Any], monkeypatch: pytest.MonkeyPatch) -> None:
+    """The refinement is for an early calibration only: after the full path's first calibration (9 s) no early fit
+    runs (each costs a few ms, every half second while open)."""
+    early: list[float] = []
+
+    def spy(series: Any, *args: Any, **kw: Any) -> Any:
+        if kw.get("early"):
+            early.append(kw["stamp"])
+        return (yield from REAL(series, *args, **kw))
+
+    monkeypatch.setattr(partial_module, "partial_fit_steps", spy)
+    cal, full = SensorCalibrator("mag", PipelineConfig.for_sensor("mag")), None
+    for t, v in zip(tumble["t"].tolist(), tumble["xyz"].tolist(), strict=True):
+        for e in cal.push(t, v):
+            if e.kind is EventKind.CALIBRATED and "partial:" not in e.message and full is None:
+                full = e.t
+    assert full is not None and early
+    assert max(early) < full, (early, full)
