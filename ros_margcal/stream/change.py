@@ -265,6 +265,7 @@ class ChangeDetection:
             return []
         self._changed = True
         self._change_onset = onset
+        self._gyro_rows_from(onset)  # partial.py
         self.changes += 1
         self._suspect_since = None
         self._back_since = None

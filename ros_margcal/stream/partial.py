@@ -392,6 +392,12 @@ class PartialCalibration:
                 q is None or not np.allclose(mount.rotation, q)):
             self._turn_readings(mount.rotation)
 
+    def _gyro_rows_from(self, onset: float) -> None:
+        """A declared sensor change at ``onset``: the gyro rows before it go (read through the new calibration, their
+        field turns wrongly: the built-in example's mounting was "not determined: the best explains 62 %")."""
+        while self._gyro_buf and self._gyro_buf[0][0] < onset:
+            self._gyro_buf.popleft()
+
     def _turn_readings(self, q: Array) -> None:
         """From now on the series and the gyro rows hold readings turned by ``q`` into the IMU's axes (their rates are
         the IMU's already): the ones kept are turned too; the last solution, in the old axes, is no start."""

@@ -177,3 +177,21 @@ def test_the_heading_figures_of_a_calibration_in_the_imu_frame_are_its_fits() ->
     assert turned[0].level_deg == pytest.approx(own[0].level_deg, rel=1e-6)
     assert own[0].level_deg < 1.0
     assert turned[0].tilt30_deg == pytest.approx(own[0].tilt30_deg, rel=1e-6)
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_the_mounting_after_a_sensor_change_ignores_the_rates_before_it(seed: int) -> None:
+    """A 20 uT hard-iron jump at 60 s of a tumble with the gyro, the magnetometer in the IMU's axes: the gyro rows
+    from before the declared change, read through the new calibration, turn the field wrongly. Before, the status
+    said "mounting not determined: the best explains 86.2 %" (89.8 % on seed 2; the built-in example's 61.9 %)."""
+    rec = GEN.generate("mag", "tumble", duration_s=150.0, rate_hz=50.0, seed=seed, gyro_scale=0.03,
+                       hard_iron_mag=30e-6, symmetric_soft_iron=True, effect="hard_iron_jump",
+                       magnitude=20e-6 / 48e-6, t_jump=60.0)
+    cal = SensorCalibrator("mag", PipelineConfig.for_sensor("mag"))
+    for t, v, w in zip(rec["t"].tolist(), rec["xyz"].tolist(), rec["gyro"].tolist(), strict=True):
+        cal.push(t, v, w)
+    assert cal.changes == 1
+    st = cal.status(float(rec["t"][-1]))
+    assert "magnetometer in the axes of the Imu messages' frame" in st.message, st.message
+    assert cal._mounting is not None and cal._mounting.rotation is not None
+    assert np.allclose(cal._mounting.rotation, np.eye(3))
