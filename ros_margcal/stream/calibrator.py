@@ -346,6 +346,7 @@ class SensorCalibrator(ChangeDetection, Evaluation):
                     setattr(self, name, deque((a for a, k in zip(old, keep, strict=True) if k), maxlen=old.maxlen))
         if self._cal is None:
             self._series.clear()
+            self._series_times.clear()
             self._series_acc = [0.0, 0.0, 0.0, 0.0, 0.0]
         log.warning("%s: saturated: %s (readings pinned there while the sensor turned): dropped from now on, and %d "
                     "that went in before taken out", self.sensor, rails.where(self.config.unit), gone)

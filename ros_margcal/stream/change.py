@@ -10,12 +10,15 @@ missed by the calibration as much (``_missed_before``), the calibration was poor
 changed: no change is declared, the refit tolerance is half ``change_threshold`` (a first calibration from
 part of the sphere that missed the start pose by 6 %, where one refit on everything leaves 0.65 %), and
 without a passing refit the calibration is kept and a refit is due. A declared change rebuilds the buffer from
-the samples since its onset, and the next validated fit describes the new sensor. A change can pass: a bad
+the samples since its onset (and the partial fit's series and gyro rows lose what came before it: ``partial.py``), and
+the next validated fit describes the new sensor. A change can pass: a bad
 stretch of samples (a sensor reset that reads a few counts, a magnet held near it for a while) is a change
 while it lasts, and afterwards the old calibration explains the samples again. When, before a new calibration,
 the median over the last ``change_window`` samples under the old calibration has stayed within half ``change_threshold`` (a margin
-against a change that hovers at the threshold) for ``change_min_duration_s``, the change is withdrawn
-(``_check_return``): the old calibration is current again, the buffer of before the change comes back with
+against a change that hovers at the threshold) for ``change_min_duration_s``, and at least ``RETURN_MIN_SAMPLES``
+of those samples are ones the change would have missed (an offset step fitted to the samples since the onset
+under the old matrix and norm: where a step leaves the norm unchanged, the norm cannot tell), the change is
+withdrawn (``_check_return``): the old calibration is current again, the buffer of before the change comes back with
 the samples since that it explains. Without this the buffer kept the bad stretch and every refit failed
 its residual guard rail: the calibrator stayed "collecting after a sensor change" for good.
 
@@ -75,6 +78,17 @@ class ChangeDetection:
     """Fewest buffered samples since the calibration's fit for a re-centring refit (four parameters)."""
     DRIFT_QUIET = 2
     """Rechecks in a row that find a re-centred calibration fresh before the full refit runs again."""
+    RETURN_MIN_SAMPLES = 10
+    """A change is withdrawn only when at least this many recent samples tell the two apart: the old calibration
+    explains them (within half ``change_threshold``) and the change, as an offset step fitted to the samples since its
+    onset, would miss them by more than ``change_threshold`` (``_check_return``, ``_step_since``). The norm alone
+    cannot tell: a hard-iron step ``db`` leaves it nearly unchanged where the field ``h`` meets
+    ``h . db = -|db|^2 / 2``; on a ground robot's ring after a 20 uT step that held for half the headings, and the
+    robot driving there for 5 s had the step withdrawn and the old calibration published again, 58 deg off, five times
+    in 200 s."""
+    RETURN_EVERY_S = 1.0
+    """The directions are compared at most this often (a few ms each) while the residuals say the change passed."""
+    _return_tried = -float("inf")
     _quiet = 0
     # the calibrator's state this mixin uses (set in ``SensorCalibrator.reset``)
     _suspect_since: float | None
@@ -265,7 +279,7 @@ class ChangeDetection:
             return []
         self._changed = True
         self._change_onset = onset
-        self._gyro_rows_from(onset)  # partial.py
+        self._drop_before_change(onset)  # the series and gyro rows (partial.py)
         self.changes += 1
         self._suspect_since = None
         self._back_since = None
@@ -303,6 +317,12 @@ class ChangeDetection:
         back = self._back_since
         if t - back < cfg.change_min_duration_s:
             return []
+        if t - self._return_tried < self.RETURN_EVERY_S:
+            return []
+        self._return_tried = t
+        again = self._told_apart(back)
+        if again < self.RETURN_MIN_SAMPLES:
+            return []  # explained only where the change shows no norm error: wait (the window grows from ``back``)
         cal, onset = self._cal, self._change_onset
         saved, self._pre_change = self._pre_change, None
         now_t, now_p = self._buffer.times(), self._buffer.points()
@@ -317,11 +337,30 @@ class ChangeDetection:
         self._since_eval = 0
         msg = (f"no sensor change after all: the change at t={-1.0 if onset is None else onset:.2f} s passed; since "
                f"t={back:.2f} s the calibration explains the samples again (median residual {pct(med)} <= {pct(limit)} "
-               f"for {t - back:.1f} s); it is kept, with the buffer of before the change and the {int(keep.sum())} "
+               f"for {t - back:.1f} s, {again} samples the change would have missed); it is kept, with the buffer of "
+               f"before the change and the {int(keep.sum())} "
                "samples since that it explains")
         log.debug("%s: %s", self.sensor, msg)
         self._last_reason = msg
         return [*events, Event(EventKind.CALIBRATED, t, self.sensor, msg, cal)]
+
+    def _told_apart(self, since: float) -> int:
+        """How many recent samples since ``since`` the old calibration explains (within half ``change_threshold``)
+        and the change would miss by more than ``change_threshold``: the change taken as the offset step that best
+        explains, under the old calibration's matrix and norm, the buffered samples from the onset to ``since`` (after
+        a declared change the buffer holds only samples since its onset)."""
+        cal, buf, cfg = self._cal, self._buffer, self.config
+        assert cal is not None
+        w, b, n = np.asarray(cal.matrix, dtype=np.float64), np.asarray(cal.offset, dtype=np.float64), cal.norm
+        times = buf.times()
+        step = _offset_step((buf.points()[times < since] - b) @ w.T, n)
+        rt = np.fromiter(self._recent_t, dtype=np.float64, count=len(self._recent_t))
+        c = (np.array(self._recent_v, dtype=np.float64).reshape(-1, 3)[rt >= since] - b) @ w.T
+        if step is None or not len(c):
+            return 0
+        old = np.abs(np.linalg.norm(c, axis=1) - n) / n
+        new = np.abs(np.linalg.norm(c - step, axis=1) - n) / n
+        return int(np.count_nonzero((old <= 0.5 * cfg.change_threshold) & (new > cfg.change_threshold)))
 
     def _no_change(self, first_bad: int, med: float) -> tuple[Calibration | None, str, Array]:
         """Test a declared change against the no-change hypothesis: ``(calibration, text, points it was fitted on)``,
@@ -389,3 +428,25 @@ class ChangeDetection:
             return ""
         return (f"; the {int(np.count_nonzero(same))} buffered samples from before the onset in the same directions were "
                 f"missed before the onset too (median {pct(then)})")
+
+
+def _offset_step(c: Array, n: float, iterations: int = 20) -> Array | None:
+    """The step ``e`` that puts calibrated readings ``c`` (N, 3) at distance ``n`` from it (Gauss-Newton from 0, the
+    old calibration's centre: the nearer of a ring's two mirror solutions); None without enough readings or when it
+    does not settle."""
+    if len(c) < 4 or not n > 0:
+        return None
+    e = np.zeros(3)
+    for _ in range(iterations):
+        d = c - e
+        r = np.linalg.norm(d, axis=1)
+        if not np.all(r > 0):
+            return None
+        jac = -d / r[:, None]
+        delta, *_ = np.linalg.lstsq(jac, n - r, rcond=None)
+        e = e + delta
+        if not np.all(np.isfinite(e)):
+            return None
+        if float(np.linalg.norm(delta)) <= 1e-9 * n:
+            break
+    return e
