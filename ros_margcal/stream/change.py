@@ -87,7 +87,7 @@ class ChangeDetection:
     robot driving there for 5 s had the step withdrawn and the old calibration published again, 58 deg off, five times
     in 200 s."""
     RETURN_EVERY_S = 1.0
-    """The directions are compared at most this often (a few ms each) while the residuals say the change passed."""
+    """The change's step is fitted at most this often (a few ms) while the residuals say the change passed."""
     _return_tried = -float("inf")
     _quiet = 0
     # the calibrator's state this mixin uses (set in ``SensorCalibrator.reset``)
@@ -317,7 +317,7 @@ class ChangeDetection:
         back = self._back_since
         if t - back < cfg.change_min_duration_s:
             return []
-        if t - self._return_tried < self.RETURN_EVERY_S:
+        if abs(t - self._return_tried) < self.RETURN_EVERY_S:  # abs: stamps that restart after a reset
             return []
         self._return_tried = t
         again = self._told_apart(back)
@@ -348,7 +348,8 @@ class ChangeDetection:
         """How many recent samples since ``since`` the old calibration explains (within half ``change_threshold``)
         and the change would miss by more than ``change_threshold``: the change taken as the offset step that best
         explains, under the old calibration's matrix and norm, the buffered samples from the onset to ``since`` (after
-        a declared change the buffer holds only samples since its onset)."""
+        a declared change the buffer holds only samples since its onset). With fewer than four of those, every
+        sample the old calibration explains counts."""
         cal, buf, cfg = self._cal, self._buffer, self.config
         assert cal is not None
         w, b, n = np.asarray(cal.matrix, dtype=np.float64), np.asarray(cal.offset, dtype=np.float64), cal.norm
@@ -356,11 +357,13 @@ class ChangeDetection:
         step = _offset_step((buf.points()[times < since] - b) @ w.T, n)
         rt = np.fromiter(self._recent_t, dtype=np.float64, count=len(self._recent_t))
         c = (np.array(self._recent_v, dtype=np.float64).reshape(-1, 3)[rt >= since] - b) @ w.T
-        if step is None or not len(c):
+        if not len(c):
             return 0
-        old = np.abs(np.linalg.norm(c, axis=1) - n) / n
+        old = np.abs(np.linalg.norm(c, axis=1) - n) / n <= 0.5 * cfg.change_threshold
+        if step is None:  # too few samples since the onset to fit a step (an accelerometer's few still poses)
+            return int(np.count_nonzero(old))  # the norm alone decides, as before
         new = np.abs(np.linalg.norm(c - step, axis=1) - n) / n
-        return int(np.count_nonzero((old <= 0.5 * cfg.change_threshold) & (new > cfg.change_threshold)))
+        return int(np.count_nonzero(old & (new > cfg.change_threshold)))
 
     def _no_change(self, first_bad: int, med: float) -> tuple[Calibration | None, str, Array]:
         """Test a declared change against the no-change hypothesis: ``(calibration, text, points it was fitted on)``,
@@ -433,7 +436,7 @@ class ChangeDetection:
 def _offset_step(c: Array, n: float, iterations: int = 20) -> Array | None:
     """The step ``e`` that puts calibrated readings ``c`` (N, 3) at distance ``n`` from it (Gauss-Newton from 0, the
     old calibration's centre: the nearer of a ring's two mirror solutions); None without enough readings or when it
-    does not settle."""
+    runs away."""
     if len(c) < 4 or not n > 0:
         return None
     e = np.zeros(3)
