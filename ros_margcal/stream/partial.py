@@ -109,6 +109,11 @@ class PartialCalibration:
     """Fewest gyro blocks (complete, with a rate on every sample) for the gyro to join a series fit."""
     EARLY_MAX_ITER = 50
     """Evaluations per solve of an early fit (a start that needs more crawls along a wrong valley)."""
+    SPLIT_FACTOR = 5.0
+    """Uncalibrated, a series fit whose residual noise is above this many times the smallest a fit of this stream left
+    is not of one sensor: the series keeps its newer half (``_split_series``). A 20 uT hard-iron step on a ground robot
+    20-40 s into the stream, before its first calibration, left 10-20x and blocked calibration for 300 s (until the
+    old sensor's part left the series)."""
     PARTIAL_GROWTH = 0.25
     """A new partial fit is due once the series received this share of its length in new samples ..."""
     PARTIAL_GROWTH_MAX = 1.0
@@ -127,6 +132,7 @@ class PartialCalibration:
     _cal: Calibration | None
     _changed: bool
     _recent_v: Any
+    _buffer: Any
 
     def _partial_reset(self) -> None:
         cfg = self.config
@@ -145,6 +151,7 @@ class PartialCalibration:
         self._early_installed = False  # the current calibration is an early fit's (``_early_open``)
         self._partial_growth = self.PARTIAL_GROWTH  # share of the series to wait for before the next partial fit
         self._early_sigma: float | None = None  # the residual noise of the last early fit
+        self._sigma_floor = math.inf  # the smallest residual noise a fit of this stream left (``SPLIT_FACTOR``)
         self._partial_sigma: float | None = None  # the residual noise of the last fit on the series ...
         self._partial_start: Calibration | None = None  # ... and its solution, the next one's start
         self._az_watch: tuple[Any, ...] | None = None  # after an azimuth refusal: its W rows x, y, offset, ring centre
@@ -178,6 +185,8 @@ class PartialCalibration:
         """Remember the noise of a series fit's residuals and its solution for the next series fit: a solution
         published, or refused only for its heading error or the azimuths seen (not for its guard rails)."""
         res: PartialResult | None = job.get("result")
+        if res is not None and math.isfinite(res.sigma) and res.sigma > 0:
+            self._sigma_floor = min(self._sigma_floor, res.sigma)
         if res is not None and job.get("early") and math.isfinite(res.sigma) and res.sigma > 0:
             self._early_sigma = res.sigma
         if res is not None and not job.get("early") and res.calibration is not None:
@@ -197,9 +206,14 @@ class PartialCalibration:
         self._partial_noise(job)
         self._az_watch = None
         res: PartialResult | None = job.get("result")
+        if res is not None and not job.get("early") and self._cal is None and self._split_series(res):
+            return
         cfg = self.config
         limit = max(cfg.early_heading_p95_deg, cfg.max_heading_p95_deg)
         self._early_close = res is not None and res.heading_seen_deg <= self.EARLY_CLOSE * limit
+        if res is not None and res.over_limit is None and res.heading_seen_deg <= limit and not job.get("early"):
+            self._early_close = False  # refused on its guard rails: more data, not the early cadence (it had retried a
+            # series fit at every evaluation for minutes, uncalibrated)
         grow = self.PARTIAL_GROWTH  # also for an early fit's heading refusal: a tumble's figure falls fast
         if res is not None and res.over_limit and not job.get("early") and math.isfinite(res.heading_seen_deg):
             grow = res.heading_seen_deg / res.over_limit - 1.0
@@ -394,6 +408,26 @@ class PartialCalibration:
         if self.config.calibrate_into_imu_frame and mount.rotation is not None and (
                 q is None or not np.allclose(mount.rotation, q)):
             self._turn_readings(mount.rotation)
+
+    def _split_series(self, res: PartialResult) -> bool:
+        """A refused series fit, uncalibrated, whose residual noise is over ``SPLIT_FACTOR`` times the stream's smallest:
+        keep the series' newer half (and the gyro rows and buffered samples since: the full path's fits of a mixed
+        buffer failed their guard rails too), a fit due at once; False (nothing done) otherwise."""
+        n, cfg = len(self._series), self.config
+        floor = self._sigma_floor  # (this fit's own sigma is in it: the test is against the fits before it too)
+        if not (math.isfinite(res.sigma) and res.sigma > self.SPLIT_FACTOR * floor and n >= 2 * cfg.min_points):
+            return False
+        cut = self._series_times[n - n // 2] - cfg.partial_period_s  # the kept points' samples came after this
+        self._drop_before_change(cut)
+        buf = self._buffer
+        times, pts = buf.times(), buf.points()
+        if len(times) and times.min() < cut:
+            buf.clear()
+            for ti, p in zip(times[times >= cut].tolist(), pts[times >= cut].tolist(), strict=True):
+                buf.push_finite(ti, p[0], p[1], p[2])
+        self._partial_note = (f"{self._partial_note}; its residual noise {res.sigma / floor:.0f}x the smallest a fit of "
+                              "this stream left: not one sensor (a hard-iron step?), the series' older half dropped")
+        return True
 
     def _drop_before_change(self, onset: float) -> None:
         """A declared sensor change at ``onset``: the series points and gyro rows from before it go, and a series fit
