@@ -451,8 +451,16 @@ class DirectionBuffer:
     def discard(self, drop: Callable[[float, float, float], bool]) -> int:
         """Remove the samples for which ``drop(x, y, z)`` is true (counted as evicted; the rest re-binned as they
         were) and return how many: samples found bad after they went in (a saturated axis, ``stream.saturation``)."""
+        return self._discard(lambda item: drop(item[1], item[2], item[3]))
+
+    def discard_before(self, t: float) -> int:
+        """Remove the samples taken before ``t`` (as ``discard``) and return how many: a sensor that changed before
+        its first calibration (``stream.partial``)."""
+        return self._discard(lambda item: item[0] < t)
+
+    def _discard(self, drop: Callable[[tuple[float, float, float, float]], bool]) -> int:
         live = [(self._t[s], self._x[s], self._y[s], self._z[s]) for s in self._live()]
-        keep = [item for item in live if not drop(item[1], item[2], item[3])]
+        keep = [item for item in live if not drop(item)]
         n = len(live) - len(keep)
         if n:
             self._cache = None

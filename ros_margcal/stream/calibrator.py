@@ -392,7 +392,6 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         self._since_eval += 1
         if self._sliced is not None or self._since_eval < (cfg.refit_every // 2 or 1):  # a fit in progress (push
             return events  # steps it: evaluation.py); the cadence never asks for fewer (a cheap test first)
-            return events
         every, interval = self._cadence()
         if self._since_eval >= every and t - self._last_eval_t >= interval:
             events += self._evaluate(t, force=False)

@@ -81,7 +81,7 @@ class ChangeDetection:
     RETURN_MIN_SAMPLES = 10
     """A change is withdrawn only when at least this many recent samples tell the two apart: the old calibration
     explains them (within half ``change_threshold``) and the change, as an offset step fitted to the samples since its
-    onset, would miss them by more than ``change_threshold`` (``_check_return``, ``_step_since``). The norm alone
+    onset, would miss them by more than ``change_threshold`` (``_check_return``, ``_told_apart``). The norm alone
     cannot tell: a hard-iron step ``db`` leaves it nearly unchanged where the field ``h`` meets
     ``h . db = -|db|^2 / 2``; on a ground robot's ring after a 20 uT step that held for half the headings, and the
     robot driving there for 5 s had the step withdrawn and the old calibration published again, 58 deg off, five times

@@ -415,16 +415,12 @@ class PartialCalibration:
         buffer failed their guard rails too), a fit due at once; False (nothing done) otherwise."""
         n, cfg = len(self._series), self.config
         floor = self._sigma_floor  # (this fit's own sigma is in it: the test is against the fits before it too)
-        if not (math.isfinite(res.sigma) and res.sigma > self.SPLIT_FACTOR * floor and n >= 2 * cfg.min_points):
-            return False
+        if not (self.sensor == "mag" and math.isfinite(res.sigma) and res.sigma > self.SPLIT_FACTOR * floor
+                and n >= 2 * cfg.min_points):
+            return False  # (an accelerometer's gate means: a few poses fit exactly, more show the model's error)
         cut = self._series_times[n - n // 2] - cfg.partial_period_s  # the kept points' samples came after this
         self._drop_before_change(cut)
-        buf = self._buffer
-        times, pts = buf.times(), buf.points()
-        if len(times) and times.min() < cut:
-            buf.clear()
-            for ti, p in zip(times[times >= cut].tolist(), pts[times >= cut].tolist(), strict=True):
-                buf.push_finite(ti, p[0], p[1], p[2])
+        self._buffer.discard_before(cut)
         self._partial_note = (f"{self._partial_note}; its residual noise {res.sigma / floor:.0f}x the smallest a fit of "
                               "this stream left: not one sensor (a hard-iron step?), the series' older half dropped")
         return True
@@ -438,10 +434,8 @@ class PartialCalibration:
         while self._gyro_buf and self._gyro_buf[0][0] < onset:
             self._gyro_buf.popleft()
         start = onset + self.config.partial_period_s  # a point made then holds samples since the onset only
-        keep = sum(1 for s in self._series_times if s >= start)
-        while len(self._series) > keep:
+        for _ in range(sum(1 for s in self._series_times if s < start)):  # the two are appended together
             self._series.popleft()
-        while len(self._series_times) > keep:
             self._series_times.popleft()
         self._series_at_attempt, self._series_len_at_attempt = -1, 0
         self._partial_growth, self._partial_start, self._az_watch = self.PARTIAL_GROWTH, None, None

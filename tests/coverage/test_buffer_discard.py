@@ -57,3 +57,22 @@ def test_discard_of_nothing_changes_nothing() -> None:
     ind = buf.indicators()
     assert buf.discard(lambda x, y, z: False) == 0
     assert buf.indicators() is ind  # not even re-binned
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(0, 300), cut=st.floats(0.0, 1.0))
+def test_discard_before_keeps_exactly_the_samples_from_then_on(seed: int, n: int, cut: float) -> None:
+    """``discard_before(t)`` (a sensor that changed before its first calibration): what stays is what was taken at
+    ``t`` or later, the rest counted as evicted."""
+    rng = np.random.default_rng(seed)
+    d = rng.normal(size=(n, 3))
+    pts = CENTRE + d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+    t = np.cumsum(rng.uniform(0.01, 0.1, n))
+    buf = _buffer(t, pts)
+    cut_t = float(t[-1]) * cut if n else 0.0
+    before = buf.times()
+    evicted = buf.stats()["evicted"]
+    gone = buf.discard_before(cut_t)
+    assert gone == int(np.count_nonzero(before < cut_t))
+    assert sorted(buf.times().tolist()) == sorted(before[before >= cut_t].tolist())
+    assert buf.stats()["evicted"] == evicted + gone
