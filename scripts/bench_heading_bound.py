@@ -15,7 +15,9 @@ Seeds 900-904 were used to choose the bound's formula (``TUNING``); seeds 950-95
 only to report it. ``--real``: the real magnetometer recordings of ``../shared/data/real`` (skipped when absent),
 where the reference is the batch fit ``margcal calibrate`` makes (``study_real_recordings.batch``), compared
 as that study does (``heading_p95_against``): every published calibration's bound against its heading
-difference to the batch fit.
+difference to the batch fit. A batch fit ``margcal calibrate`` itself refuses (``calibrate_guard.refusal``: a
+stretch whose residual one ellipsoid does not explain) is no reference: the calibrations it would judge are
+counted apart (``no ref``), not judged.
 
 The bound is the status's (``model.heading.heading_p95_quantile`` of the fit's covariance: for a full fit's
 unordered buffer, the white-noise covariance times ``UNORDERED_SD_FACTOR`` or the delete-a-region jackknife's,
@@ -40,12 +42,15 @@ import numpy as np
 from study_ground_robot import independent_generator  # scripts/ is on the path when a script in it runs
 from study_real_recordings import DATA, batch_stretches, heading_p95_against, units
 
+from ros_margcal.cli.calibrate_guard import refusal
+from ros_margcal.cli.fit_rescue import config_for
 from ros_margcal.model.calibration import Calibration
 from ros_margcal.model.fitting_prior import NAMES as SYM_NAMES
 from ros_margcal.model.fitting_prior import broad_prior, posterior_at
 from ros_margcal.model.heading import heading_p95
 from ros_margcal.recordings.read import read_recording
 from ros_margcal.stream.calibrator import EventKind, PipelineConfig, SensorCalibrator
+from ros_margcal.stream.config import white_noise
 
 TUNING = tuple(range(900, 905))
 HELD_OUT = tuple(range(950, 960))
@@ -192,7 +197,7 @@ def real(data: Path) -> None:
         return
     print("real recordings: the stream's bound against the heading difference to the batch fit (every published "
           "calibration; 60 deg inclination)")
-    print(f"  {'recording':48s} {'cals':>4s} {HEADER}; batch fit")
+    print(f"  {'recording':48s} {'cals':>4s} {'no ref':>6s} {HEADER}; batch fit")
     every: list[dict[str, float]] = []
     for name in names:
         path, unit = data / name, known[name]
@@ -200,17 +205,28 @@ def real(data: Path) -> None:
         rows: list[dict[str, float]] = []
         if stretches:
             rec = read_recording(path, sensor="mag", order="file")
+            noise = white_noise(np.asarray(rec.raw, dtype=np.float64))  # as margcal calibrate's guard rails
+            written = [not refusal(c, config_for("mag", unit), noise) for c in stretches]
             note += ", each against its stretch's" if len(stretches) > 1 else ""
+            note += f"; {written.count(False)} refused by margcal calibrate" if not all(written) else ""
 
-            def measure(c: Calibration, parts: list[Calibration] = stretches) -> tuple[float, float]:
+            def measure(c: Calibration, parts: list[Calibration] = stretches,
+                        ok: list[bool] = written) -> tuple[float, float]:
                 # the batch fit of the stretch it was fitted in: the first whose end (its stamp) is not before it
-                ref = next((cal for cal in parts if cal.stamp >= c.stamp), parts[-1])
-                return heading_p95_against(c, ref, 0.0), heading_p95_against(c, ref, 30.0)
+                k = next((i for i, cal in enumerate(parts) if cal.stamp >= c.stamp), len(parts) - 1)
+                if not ok[k]:
+                    return math.nan, math.nan
+                return heading_p95_against(c, parts[k], 0.0), heading_p95_against(c, parts[k], 30.0)
 
             rows = published(np.asarray(rec.t), np.asarray(rec.raw), PipelineConfig.for_sensor("mag", unit), measure)
         every += rows
-        print(f"  {name:48s} {len(rows):4d} {_cells(rows)}; {note}", flush=True)
-    print(f"  {'all':48s} {len(every):4d} {_cells(every)}")
+        print(f"  {name:48s} {len(rows):4d} {_no_ref(rows):6d} {_cells(rows)}; {note}", flush=True)
+    print(f"  {'all':48s} {len(every):4d} {_no_ref(every):6d} {_cells(every)}")
+
+
+def _no_ref(rows: list[dict[str, float]]) -> int:
+    """Published calibrations without a reference to judge them by (their stretch's batch fit was refused)."""
+    return sum(1 for r in rows if not math.isfinite(r["level"]))
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -106,16 +106,17 @@ def batch_stretches(path: Path, sensor: str, unit: str) -> tuple[list[Calibratio
     except RecordingError as exc:
         return [], f"none: {exc}"
     cfg = config_for(sensor, unit)
+    noise = white_noise(np.asarray(rec.raw, dtype=np.float64)) if sensor == "mag" else 0.0  # as margcal calibrate
     try:
         cal = fit(pts, model="sym", method="lm", sensor=sensor, unit=unit)
-        noise = white_noise(np.asarray(rec.raw, dtype=np.float64)) if sensor == "mag" else 0.0  # as margcal calibrate
         why, high = check(cal, cfg), residual_note(cal, cfg, noise)
     except (ConvergenceError, DegenerateDataError) as exc:
         cal, why, high = None, str(exc), ""
     if not why and not high:
         return [cal], "lm"
     res = rescue(None if sensor == "accel" else np.asarray(rec.t, dtype=np.float64), pts, failure=why or high,
-                 model="sym", norm=None, loss="linear", sensor=sensor, unit=unit, cfg=cfg, change_only=not why)
+                 model="sym", norm=None, loss="linear", sensor=sensor, unit=unit, cfg=cfg, change_only=not why,
+                 noise=noise)
     if res is None:
         return ([cal] if cal is not None else []), f"lm, warning: {high.split(':')[0]}"
     fitted = [p for p in res.parts if p.calibration is not None]

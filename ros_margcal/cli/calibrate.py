@@ -316,7 +316,8 @@ def run(args: argparse.Namespace) -> int:
         cal, failure, high = None, str(exc), ""
     if (failure or high) and not args.no_rescue:
         res = rescue(times, points, failure=failure or high, model=model if model in SUPPORTED["lm"] else "sym",
-                     norm=prior_norm, loss=args.loss, sensor=sensor, unit=unit, cfg=cfg, change_only=not failure)
+                     norm=prior_norm, loss=args.loss, sensor=sensor, unit=unit, cfg=cfg, change_only=not failure,
+                     noise=noise)
         if res is not None:
             return _report_rescue(res, args, cfg, n_read, extra, fixed, noise)
     if high:

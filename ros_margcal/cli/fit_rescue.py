@@ -7,8 +7,10 @@ reason, in this order, and acts on it:
 1. *static*: the readings stay within ``STATIC_SPREAD`` of their mean norm (RMS distance from their
    mean): they fix the field norm and nothing else. Nothing is fitted (``Rescue.refused``).
 2. *a change*: ``diagnosis.changes.locate_offset_change`` finds an offset step (a magnet attached
-   mid-way): the recording holds two calibrations; each side is fitted on its own (plain fit, or the
-   prior fit when that side alone is partial) and both are returned.
+   mid-way) in the recording, else in its first or last two thirds (attached, then removed): each side is
+   fitted on its own (plain fit, or the prior fit when that side alone is partial), and a side whose fit
+   is refused or leaves a residual above the limit is searched and split once more; every stretch's
+   calibration is returned.
 3. *partial coverage* (a hemisphere, a ring, a few great circles): ``fitting_prior.fit_with_prior``
    from ``broad_prior`` fits what the directions determine and keeps the rest at the prior, saying
    which parameters are which.
@@ -74,10 +76,22 @@ _LOCATE_POINTS = 6000
 """The change search runs on an evenly spaced subsample of at most this many points (as the diagnosis)."""
 
 
-def _locate(t: Array, points: Array) -> OffsetChange | None:
+def _locate_once(t: Array, points: Array) -> OffsetChange | None:
     """``locate_offset_change`` on an evenly spaced subsample, with the rescue's evidence threshold."""
     pick = np.linspace(0, len(points) - 1, min(_LOCATE_POINTS, len(points))).astype(np.intp)
     return locate_offset_change(np.asarray(t)[pick], np.asarray(points)[pick], min_shared_drop=RESCUE_SHARED_DROP)
+
+
+def _locate(t: Array, points: Array) -> OffsetChange | None:
+    """An offset change in ``points``: the best single split of all of them, else of their first or last two
+    thirds (a magnet attached and later removed: no single split of the whole explains A-B-A, one of a window
+    holding one change does; the stretch beyond it is split in turn by ``_segment``)."""
+    found = _locate_once(t, points)
+    if found is not None or len(points) < 3 * _MIN_POINTS:
+        return found
+    n = len(points)
+    windows = [_locate_once(t[a:b], points[a:b]) for a, b in ((0, 2 * n // 3), (n // 3, n))]
+    return max((c for c in windows if c is not None), key=lambda c: c.shared_drop, default=None)
 
 Array = NDArray[np.float64]
 Mask = NDArray[np.bool_]
@@ -288,10 +302,13 @@ def _segment(t: Array, points: Array, label: str, depth: int, kw: dict[str, obje
     except (ConvergenceError, DegenerateDataError) as exc:
         why = str(exc)
     else:
-        if not why:
+        high = "" if why else residual_note(cal, cfg, float(kw.get("noise", 0.0)))  # type: ignore[arg-type]
+        if not why and not (high and depth > 0):
             return [Part(label, cal, n)]
     if depth > 0:
         ch = _locate(t, points)
+        if ch is None and not why:  # a residual above the limit without a change: the plain fit stands
+            return [Part(label, cal, n)]
         if ch is not None:
             before = t < ch.t
             kw["changes"].append(ch.t)  # type: ignore[attr-defined]
@@ -302,7 +319,8 @@ def _segment(t: Array, points: Array, label: str, depth: int, kw: dict[str, obje
 
 
 def rescue(t: Array | None, points: Array, *, failure: str, model: str, norm: float | None, loss: str,
-           sensor: str, unit: str, cfg: PipelineConfig | None, change_only: bool = False) -> Rescue | None:
+           sensor: str, unit: str, cfg: PipelineConfig | None, change_only: bool = False,
+           noise: float = 0.0) -> Rescue | None:
     """Diagnose a failed or implausible fit of ``points`` (module docstring) and fit what can be fitted.
 
     Args:
@@ -313,6 +331,7 @@ def rescue(t: Array | None, points: Array, *, failure: str, model: str, norm: fl
         cfg: the limits that judge a fit (``config_for``), None for no plausibility check.
         change_only: the fit itself is plausible, only its residual is high: look for an offset change
             and return None when there is none (motion or disturbances, not a reason to refit).
+        noise: the readings' white noise (raw units), which widens the residual limit (``residual_note``).
 
     Raises:
         InputError: a component of ``points`` beyond ``MAX_READING`` or not finite.
@@ -324,7 +343,8 @@ def rescue(t: Array | None, points: Array, *, failure: str, model: str, norm: fl
     stamp = float(t[-1]) if t is not None and len(t) else 0.0
     u = f" {unit}" if unit else ""
     if change_only:
-        return _change(t, pts, failure, model=model, norm=norm, loss=loss, sensor=sensor, unit=unit, cfg=cfg)
+        return _change(t, pts, failure, model=model, norm=norm, loss=loss, sensor=sensor, unit=unit, cfg=cfg,
+                       noise=noise)
     if len(pts) < _MIN_POINTS:
         reason = f"only {len(pts)} samples: too few for any calibration (need {_MIN_POINTS})"
         return Rescue("too few", reason, lines=[f"requested fit: {failure}", reason])
@@ -335,7 +355,8 @@ def rescue(t: Array | None, points: Array, *, failure: str, model: str, norm: fl
                   f"(|v| = {level:.4g}{u}); they determine the field norm only, not the offset or the matrix")
         return Rescue("static", reason, lines=[f"requested fit: {failure}", reason,
                                                "no calibration fitted: turn the sensor through all directions"])
-    found = _change(t, pts, failure, model=model, norm=norm, loss=loss, sensor=sensor, unit=unit, cfg=cfg)
+    found = _change(t, pts, failure, model=model, norm=norm, loss=loss, sensor=sensor, unit=unit, cfg=cfg,
+                    noise=noise)
     if found is not None:
         return found
     pf = _prior_fit(pts, norm, sensor, unit, stamp)
@@ -351,7 +372,7 @@ def _prior_text(pf: PriorFit) -> str:
 
 
 def _change(t: Array | None, pts: Array, failure: str, *, model: str, norm: float | None, loss: str, sensor: str,
-            unit: str, cfg: PipelineConfig | None) -> Rescue | None:
+            unit: str, cfg: PipelineConfig | None, noise: float = 0.0) -> Rescue | None:
     """The offset-change diagnosis: the stretches between located changes, each fitted; None without a change."""
     u = f" {unit}" if unit else ""
     if t is None or len(t) != len(pts) or len(pts) < _MIN_POINTS:
@@ -363,7 +384,7 @@ def _change(t: Array | None, pts: Array, failure: str, *, model: str, norm: floa
     before = times < ch.t
     changes: list[float] = [ch.t]
     kw: dict[str, object] = {"model": model, "norm": norm, "loss": loss, "sensor": sensor, "unit": unit, "cfg": cfg,
-                             "changes": changes}
+                             "changes": changes, "noise": noise}
     parts = (*_segment(times[before], pts[before], _span(times[before]), 1, kw),
              *_segment(times[~before], pts[~before], _span(times[~before]), 1, kw))
     more = sorted(changes[1:])

@@ -88,6 +88,25 @@ def test_a_mid_way_hard_iron_change_gives_two_calibrations(independent: ModuleTy
     np.testing.assert_allclose(cals["mag"].offset, parts[1]["offset"])
 
 
+def test_a_magnet_attached_and_removed_gives_three_calibrations(independent: ModuleType, tmp_path: Path,
+                                                                capsys: pytest.CaptureFixture[str]) -> None:
+    """Offsets A, B, A (a magnet attached at 60 s, removed at 120 s): no single split explains the recording, one
+    of its first two thirds does, and the stretch after it splits in turn; each of the three stretches is fitted to
+    within 1 % of its truth and written (before: one ellipsoid, refused on its residual, nothing written)."""
+    rec = independent.generate("mag", seed=11, unit="uT", motion="tumble", duration_s=180.0,
+                               effect="hard_iron_jump", magnitude=0.5, t_jump=60.0)
+    truth = rec["truth"]
+    rec["xyz"][rec["t"] >= 120.0] -= truth["offset_after"] - truth["offset"]  # the magnet taken off again
+    path = tmp_path / "aba.csv"
+    independent.write_csv(path, rec)
+    rc, text, out = _calibrate(path, tmp_path, capsys)
+    assert rc == 0, text
+    assert "3 calibrations" in text
+    parts = json.loads(out.read_text())["calibrations"]
+    for part, want in zip(parts, (truth["offset"], truth["offset_after"], truth["offset"]), strict=True):
+        assert np.linalg.norm(np.array(part["offset"]) - want) < 0.01 * truth["norm"]
+
+
 def test_no_rescue_keeps_the_error(independent: ModuleType, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """--no-rescue: the fit's own error, exit code 2."""
     path, _ = _csv(independent, tmp_path, "static", motion="static", duration_s=30.0)
