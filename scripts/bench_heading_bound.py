@@ -15,7 +15,8 @@ Seeds 900-904 were used to choose the bound's formula (``TUNING``); seeds 950-95
 only to report it. ``--real``: the real magnetometer recordings of ``../shared/data/real`` (skipped when absent),
 where the reference is the batch fit ``margcal calibrate`` makes (``study_real_recordings.batch``), compared
 as that study does (``heading_p95_against``): every published calibration's bound against its heading
-difference to the batch fit. A batch fit ``margcal calibrate`` itself refuses (``calibrate_guard.refusal``: a
+difference to the batch fit, at the field inclination the status's figures assume (``heading_inclination_deg``:
+a ring's or band's inferred from its data, else 60 deg): a figure is a claim at its inclination. A batch fit ``margcal calibrate`` itself refuses (``calibrate_guard.refusal``: a
 stretch whose residual one ellipsoid does not explain) is no reference: the calibrations it would judge are
 counted apart (``no ref``), not judged.
 
@@ -51,6 +52,7 @@ from ros_margcal.model.heading import heading_p95
 from ros_margcal.recordings.read import read_recording
 from ros_margcal.stream.calibrator import EventKind, PipelineConfig, SensorCalibrator
 from ros_margcal.stream.config import white_noise
+from ros_margcal.stream.observable import DEFAULT_INCLINATION_DEG
 
 TUNING = tuple(range(900, 905))
 HELD_OUT = tuple(range(950, 960))
@@ -105,9 +107,10 @@ def baseline(cal: SensorCalibrator, published_cal: Calibration) -> tuple[float, 
 
 
 def published(t: np.ndarray, xyz: np.ndarray, cfg: PipelineConfig,
-              measure: Callable[[Calibration], tuple[float, float]]) -> list[dict[str, float]]:
+              measure: Callable[[Calibration, float], tuple[float, float]]) -> list[dict[str, float]]:
     """One row per published calibration: the status's bounds right after it, the old ones (``baseline``) and
-    ``measure``'s level and 30 deg figures of it (the generator's truth, or the batch fit)."""
+    ``measure``'s level and 30 deg figures of it (the generator's truth, or the batch fit), given the field
+    inclination the status's figures assume (``heading_inclination_deg``)."""
     cal = SensorCalibrator("mag", cfg)
     rows = []
     for tk, v in zip(t.tolist(), xyz, strict=True):
@@ -115,7 +118,8 @@ def published(t: np.ndarray, xyz: np.ndarray, cfg: PipelineConfig,
             if e.kind is not EventKind.CALIBRATED or e.calibration is None:
                 continue
             st = cal.status(tk)
-            level, tilt30 = measure(e.calibration)
+            inc = st.heading_inclination_deg
+            level, tilt30 = measure(e.calibration, DEFAULT_INCLINATION_DEG if inc is None else inc)
             new_level, new_tilt30 = baseline(cal, e.calibration)
             rows.append({"t": tk, "level_pred": _figure(st, "heading_p95_level_deg"),
                          "tilt30_pred": _figure(st, "heading_p95_tilt30_deg"), "level_new": new_level,
@@ -131,7 +135,7 @@ def run_case(gen: Any, case: tuple[str, float, dict[str, Any]], seed: int) -> li
                        symmetric_soft_iron=True, **kw)
     truth = rec["truth"]
 
-    def measure(c: Calibration) -> tuple[float, float]:
+    def measure(c: Calibration, _inc: float) -> tuple[float, float]:  # at the generator's own field
         return (float(gen.heading_p95(c.matrix, c.offset, truth, tilt_deg=0.0)),
                 float(gen.heading_p95(c.matrix, c.offset, truth, tilt_deg=30.0)))
 
@@ -196,7 +200,7 @@ def real(data: Path) -> None:
         print(f"no real recordings at {data}: skipped")
         return
     print("real recordings: the stream's bound against the heading difference to the batch fit (every published "
-          "calibration; 60 deg inclination)")
+          "calibration; at the field inclination its status's figures assume: a ring's from its data, else 60 deg)")
     print(f"  {'recording':48s} {'cals':>4s} {'no ref':>6s} {HEADER}; batch fit")
     every: list[dict[str, float]] = []
     for name in names:
@@ -210,13 +214,13 @@ def real(data: Path) -> None:
             note += ", each against its stretch's" if len(stretches) > 1 else ""
             note += f"; {written.count(False)} refused by margcal calibrate" if not all(written) else ""
 
-            def measure(c: Calibration, parts: list[Calibration] = stretches,
+            def measure(c: Calibration, inc: float, parts: list[Calibration] = stretches,
                         ok: list[bool] = written) -> tuple[float, float]:
                 # the batch fit of the stretch it was fitted in: the first whose end (its stamp) is not before it
                 k = next((i for i, cal in enumerate(parts) if cal.stamp >= c.stamp), len(parts) - 1)
                 if not ok[k]:
                     return math.nan, math.nan
-                return heading_p95_against(c, parts[k], 0.0), heading_p95_against(c, parts[k], 30.0)
+                return heading_p95_against(c, parts[k], 0.0, inc), heading_p95_against(c, parts[k], 30.0, inc)
 
             rows = published(np.asarray(rec.t), np.asarray(rec.raw), PipelineConfig.for_sensor("mag", unit), measure)
         every += rows

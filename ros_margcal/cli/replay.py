@@ -170,8 +170,9 @@ def _format_cal(cal: Calibration) -> str:
 def _heading_lines(st: Status) -> list[str]:
     """The predicted heading error and the partial calibration's parameters, for the final state."""
     out = []
+    inc = "" if st.heading_inclination_deg is None else f", {st.heading_inclination_deg:.3g} deg field inclination"
     if st.heading_p95_level_deg is not None or st.heading_p95_tilt30_deg is not None:
-        out.append(f"    heading error (predicted p95, 95 % bound): {format_bound(st.heading_p95_level_deg)} level, "
+        out.append(f"    heading error (predicted p95, 95 % bound{inc}): {format_bound(st.heading_p95_level_deg)} level, "
                    f"{format_bound(st.heading_p95_tilt30_deg)} at +-30 deg tilt")
     if st.heading_typical_level_deg is not None or st.heading_typical_tilt30_deg is not None:
         out.append(f"    heading error (predicted p95, typical): {format_bound(st.heading_typical_level_deg)} level, "
@@ -269,6 +270,7 @@ def run(args: argparse.Namespace) -> int:
                 print(line)
             entry["heading_p95_deg"] = {"level": st.heading_p95_level_deg, "tilt30": st.heading_p95_tilt30_deg}
             entry["heading_typical_deg"] = {"level": st.heading_typical_level_deg, "tilt30": st.heading_typical_tilt30_deg}
+            entry["heading_inclination_deg"] = st.heading_inclination_deg
             entry["partial"] = {"partial": st.partial, "updated": list(st.updated_parameters),
                                 "from_prior": list(st.prior_parameters), "tilt_seen_deg": st.tilt_seen_deg}
             ref = _truth_for(truth, s)

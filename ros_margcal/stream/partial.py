@@ -524,7 +524,7 @@ class PartialCalibration:
         if f is not None and self._cal is not None:
             out += (f"; heading p95 {format_bound(f.level_deg)} level, {format_bound(f.tilt30_deg)} at 30 deg tilt "
                     f"(predicted 95 % bound; typical {format_bound(f.level_typical_deg)} / "
-                    f"{format_bound(f.tilt30_typical_deg)})")
+                    f"{format_bound(f.tilt30_typical_deg)}; {f.inclination_deg:.3g} deg field inclination)")
         g = self._gyro_share if self._gyro_applies() else math.nan
         mount = self._mounting  # the last estimate, of a series fit or a full one (``_full_mounting``)
         if math.isfinite(g) and self._gyro_frame:
@@ -566,6 +566,7 @@ class PartialCalibration:
             else f.level_typical_deg,
             "heading_typical_tilt30_deg": None if (f is None or cal is None or not math.isfinite(f.tilt30_typical_deg))
             else f.tilt30_typical_deg,
+            "heading_inclination_deg": None if (f is None or cal is None) else f.inclination_deg,
             "tilt_seen_deg": None if (p is None or cal is None) else p.tilt_seen_deg,
             "gyro_explained": self._gyro_share if (math.isfinite(self._gyro_share) and self._gyro_applies()) else None,
             **_mount_fields(self._mounting),

@@ -92,6 +92,7 @@ class Status:
     heading_p95_tilt30_deg: float | None = None  # ... with roll and pitch up to 30 deg
     heading_typical_level_deg: float | None = None  # magnetometer: the heading p95 it most likely measures (median), level
     heading_typical_tilt30_deg: float | None = None  # ... with roll and pitch up to 30 deg
+    heading_inclination_deg: float | None = None  # the field inclination those figures assume, deg (a position's, a ring's, else 60)
     tilt_seen_deg: float | None = None  # partial: the tilt range of the data it was fitted on, degrees
     gyro_explained: float | None = None  # magnetometer: share of the field's turning the gyro accounted for (None: no gyro)
     mounting: str = ""  # magnetometer with a gyro: its axes against the IMU's ("x->-y, y->x, z->z (90 deg about -z)"), ...
@@ -143,6 +144,7 @@ class Status:
             ("heading_p95_tilt30_deg", num(self.heading_p95_tilt30_deg, "{:.3g}")),
             ("heading_typical_level_deg", num(self.heading_typical_level_deg, "{:.3g}")),
             ("heading_typical_tilt30_deg", num(self.heading_typical_tilt30_deg, "{:.3g}")),
+            ("heading_inclination_deg", num(self.heading_inclination_deg, "{:.3g}")),
             ("tilt_seen_deg", num(self.tilt_seen_deg, "{:.3g}")),
             ("gyro_explained", num(self.gyro_explained, "{:.4g}")),
             ("mounting", self.mounting),
@@ -169,6 +171,7 @@ class Status:
             "heading_p95_level_deg": self.heading_p95_level_deg, "heading_p95_tilt30_deg": self.heading_p95_tilt30_deg,
             "heading_typical_level_deg": self.heading_typical_level_deg,
             "heading_typical_tilt30_deg": self.heading_typical_tilt30_deg,
+            "heading_inclination_deg": self.heading_inclination_deg,
             "tilt_seen_deg": self.tilt_seen_deg, "gyro_explained": self.gyro_explained, "mounting": self.mounting,
             "mounting_misalignment_deg": self.mounting_misalignment_deg,
             "mounting_misalignment_sd_deg": self.mounting_misalignment_sd_deg,

@@ -94,6 +94,26 @@ def test_a_ground_robot_gets_a_partial_calibration_with_its_heading_error(ground
     d = st.to_dict()
     assert d["updated_parameters"] == list(st.updated_parameters) and d["heading_p95_level_deg"] == st.heading_p95_level_deg
     assert d["heading_typical_tilt30_deg"] == st.heading_typical_tilt30_deg
+    # the figures' inclination, inferred from the ring (the generator's field: 60 deg), in every form
+    assert st.heading_inclination_deg == pytest.approx(60.0, abs=5.0)
+    assert float(values["heading_inclination_deg"]) == pytest.approx(st.heading_inclination_deg, rel=1e-2)
+    assert d["heading_inclination_deg"] == st.heading_inclination_deg
+    assert f"{st.heading_inclination_deg:.3g} deg field inclination" in st.message
+
+
+def test_a_rings_heading_figures_are_at_the_inclination_of_its_field() -> None:
+    """Where the field dips 20 deg (not the 60 deg assumed without data), a ground robot's figures say so and are
+    the heading error there: the bound covers the error measured at the generator's own field."""
+    rec = GEN.generate("mag", "ground", duration_s=300.0, rate_hz=50.0, seed=23, tilt_deg=5.0, inclination_deg=20.0,
+                       symmetric_soft_iron=True, hard_iron_mag=30e-6)
+    cal = SensorCalibrator("mag")
+    events = _feed(cal, rec)
+    assert events, cal.status().message
+    st = cal.status()
+    assert st.heading_inclination_deg == pytest.approx(20.0, abs=5.0)
+    c = cal.calibration
+    measured = GEN.heading_p95(c.matrix, c.offset, rec["truth"], 0.0)
+    assert st.heading_p95_level_deg is not None and measured <= st.heading_p95_level_deg
 
 
 def test_without_the_partial_path_a_ground_robot_never_calibrates(ground: dict[str, Any]) -> None:
@@ -176,7 +196,8 @@ def test_replay_prints_the_heading_error_and_the_partial_parameters(ground: dict
     args = parser.parse_args(["replay", str(csv), "--sensor", "mag", "-q", "--json", str(out_json)])
     assert args.func(args) == 0
     text = capsys.readouterr().out
-    assert "heading error (predicted p95, 95 % bound):" in text and "deg level" in text
+    assert "heading error (predicted p95, 95 % bound, " in text and "deg field inclination):" in text
+    assert "deg level" in text
     assert "heading error (predicted p95, typical):" in text
     assert "partial calibration (data tilted up to" in text and "from the prior: w_zz" in text
     doc = json.loads(out_json.read_text())["sensors"]["mag"]
