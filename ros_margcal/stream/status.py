@@ -92,7 +92,7 @@ class Status:
     heading_p95_tilt30_deg: float | None = None  # ... with roll and pitch up to 30 deg
     heading_typical_level_deg: float | None = None  # magnetometer: the heading p95 it most likely measures (median), level
     heading_typical_tilt30_deg: float | None = None  # ... with roll and pitch up to 30 deg
-    heading_inclination_deg: float | None = None  # the field inclination those figures assume, deg (a position's, a ring's, else 60)
+    heading_inclination_deg: float | None = None  # the field inclination they hold at, deg (a position's, a ring's, or 60)
     tilt_seen_deg: float | None = None  # partial: the tilt range of the data it was fitted on, degrees
     gyro_explained: float | None = None  # magnetometer: share of the field's turning the gyro accounted for (None: no gyro)
     mounting: str = ""  # magnetometer with a gyro: its axes against the IMU's ("x->-y, y->x, z->z (90 deg about -z)"), ...
