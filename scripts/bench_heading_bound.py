@@ -16,7 +16,7 @@ only to report it. ``--real``: the real magnetometer recordings of ``../shared/d
 where the reference is the batch fit ``margcal calibrate`` makes (``study_real_recordings.batch``), compared
 as that study does (``heading_p95_against``): every published calibration's bound against its heading
 difference to the batch fit, at the field inclination the status's figures assume (``heading_inclination_deg``:
-a ring's or band's inferred from its data, else 60 deg): a figure is a claim at its inclination. A batch fit
+a near-level ring's inferred from its data, else 60 deg): a figure is a claim at its inclination. A batch fit
 ``margcal calibrate`` itself refuses (``calibrate_guard.refusal``: a stretch whose residual one ellipsoid does not
 explain) is no reference: the calibrations it would judge are counted apart (``no ref``), not judged.
 

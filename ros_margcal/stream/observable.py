@@ -27,7 +27,7 @@ has: ``model.heading.heading_p95_quantile`` from the posterior covariance (with 
 absorbs, ``with_offset_noise``), at the *tilt seen* (half the 2.5-97.5
 percentile spread of the calibrated field's elevation over the series: roll and pitch of ``±a`` move the
 elevation by up to ``±a``) and the field inclination seen (``heading.inclination_deg``, z axis up on
-average). A partial calibration is published when that figure is at most ``max_heading_p95_deg`` and the
+average; a band tilted past ``INFER_INCLINATION_MAX_TILT_DEG`` takes 60°). A partial calibration is published when that figure is at most ``max_heading_p95_deg`` and the
 guard rails (``config.guard_rails`` without the parameter-uncertainty check, which the heading figure
 replaces: the prior-held parameters are uncertain by construction) pass, and the data are a ring or band
 (tilt seen at most ``partial_max_tilt_deg``, 45° by default: richer motion is the full path's) turned
@@ -137,6 +137,11 @@ SIGMA_REUSE_TOLERANCE = 0.3
 """A previous fit's noise is kept when the residuals at the new solution agree with it within this share."""
 DEFAULT_INCLINATION_DEG = 60.0
 """Field inclination assumed for the heading figures of a full calibration (mid latitudes) unless configured."""
+INFER_INCLINATION_MAX_TILT_DEG = 10.0
+"""A partial fit's figures take the inclination its data show (``heading.inclination_deg``: z up on average) only
+when their tilt seen is at most this; else ``DEFAULT_INCLINATION_DEG``. A z axis tilted by ``a`` lowers the field's
+mean vertical share by about ``1 - cos a``, and over few turns its tilt toward the field does not average out: on the
+independent generator's ±20° band 44-58° for 60°, where the bound then missed the error at the true field's."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -436,7 +441,8 @@ def partial_fit_steps(series: Array, prior: Calibration | None, cfg: PipelineCon
                                  azimuth=azimuth, sigma=pf.residual_sigma, gyro_explained=pf.gyro_explained,
                                  gyro_used=pf.gyro_used, gyro_frame=pf.gyro_frame, level=pf.level)
         yield  # the heading figures next
-        inc = _inclination(cfg, cal, None if rich else series)  # "z up on average" holds for a ring, not a tumble
+        # "z up on average" holds for a ring, not a tumble or a band (INFER_INCLINATION_MAX_TILT_DEG)
+        inc = _inclination(cfg, cal, None if rich or not tilt <= INFER_INCLINATION_MAX_TILT_DEG else series)
         sigma = pf.residual_sigma
         # slow noise longer than the series, which the offset absorbs and no residual shows (model.heading)
         bounded = with_offset_noise(cal, sigma) if sigma is not None and math.isfinite(sigma) and sigma >= 0 else cal

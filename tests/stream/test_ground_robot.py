@@ -19,7 +19,12 @@ from conftest import INDEPENDENT
 from ros_margcal.model.errors import ConfigError
 from ros_margcal.ros.messages import status_to_diagnostic
 from ros_margcal.stream.calibrator import EventKind, PipelineConfig, SensorCalibrator
-from ros_margcal.stream.observable import sphere_radius, tilt_seen_deg
+from ros_margcal.stream.observable import (
+    DEFAULT_INCLINATION_DEG,
+    INFER_INCLINATION_MAX_TILT_DEG,
+    sphere_radius,
+    tilt_seen_deg,
+)
 
 
 @dataclass
@@ -114,6 +119,20 @@ def test_a_rings_heading_figures_are_at_the_inclination_of_its_field() -> None:
     c = cal.calibration
     measured = GEN.heading_p95(c.matrix, c.offset, rec["truth"], 0.0)
     assert st.heading_p95_level_deg is not None and measured <= st.heading_p95_level_deg
+
+
+def test_a_bands_heading_figures_take_the_default_inclination() -> None:
+    """A ±20 deg band tilts too much for "z up on average": its mean vertical share reads the field 44-58 deg
+    (bench seeds 900-904; 60 deg true); its figures take 60 deg and say so."""
+    rec = GEN.generate("mag", "band", duration_s=120.0, rate_hz=50.0, seed=903, band_deg=20.0,
+                       symmetric_soft_iron=True, hard_iron_mag=30e-6)
+    cal = SensorCalibrator("mag")
+    events = _feed(cal, rec)
+    assert events, cal.status().message
+    st = cal.status()
+    assert st.tilt_seen_deg is not None and st.tilt_seen_deg > INFER_INCLINATION_MAX_TILT_DEG
+    assert st.heading_inclination_deg == DEFAULT_INCLINATION_DEG
+    assert "60 deg field inclination" in st.message
 
 
 def test_without_the_partial_path_a_ground_robot_never_calibrates(ground: dict[str, Any]) -> None:
