@@ -27,7 +27,8 @@ has: ``model.heading.heading_p95_quantile`` from the posterior covariance (with 
 absorbs, ``with_offset_noise``), at the *tilt seen* (half the 2.5-97.5
 percentile spread of the calibrated field's elevation over the series: roll and pitch of ``±a`` move the
 elevation by up to ``±a``) and the field inclination seen (``heading.inclination_deg``, z axis up on
-average; a band tilted past ``INFER_INCLINATION_MAX_TILT_DEG`` takes 60°). A partial calibration is published when that figure is at most ``max_heading_p95_deg`` and the
+average; a band tilted past ``INFER_INCLINATION_MAX_TILT_DEG`` takes 60°). A partial calibration is published when
+that figure is at most ``max_heading_p95_deg`` and the
 guard rails (``config.guard_rails`` without the parameter-uncertainty check, which the heading figure
 replaces: the prior-held parameters are uncertain by construction) pass, and the data are a ring or band
 (tilt seen at most ``partial_max_tilt_deg``, 45° by default: richer motion is the full path's) turned
