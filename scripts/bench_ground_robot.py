@@ -30,7 +30,8 @@ yaw, level and with roll/pitch in {-30, 0, 30} deg, tilt compensation with the t
   500-509 held out (``JUMP_HELD_OUT``); then the same seeds with the step at 20-40 s, before the first calibration
   (300 s: a series mixing both sensors blocked calibration until the old part left it). Per group: the seeds
   calibrated again after the step and how long after it, that calibration's level p95, calibrations published worse
-  than 5 deg level (against the truth of their time), the final level p95.
+  than 5 deg level (against the truth of their time), the final level p95; then the step put on at 150 s and taken
+  off again at 300 s (450 s): the same figures after 300 s, and how many came back as the calibration of before.
 - ``accel``: 2.5 s moves and 1.5 s rests at 100 Hz for 60 s, with and without a gyro: samples kept,
   calibrated or not, the status message.
 - ``--field-model LAT,LON`` (issue 28): the ground robot at 5 deg tilt in the World Magnetic Model's field at that
@@ -343,12 +344,51 @@ def ground_jump(gen: Any, quick: bool) -> None:
                     first.append(post[0][1])
                 end = cal.calibration
                 ends.append(_p95(gen, end, tr, 0.0) if end is not None and post else np.nan)
+            _jump_row(name, gyro, len(seeds), after, first, wrong, ends)
+    ground_jump_off(gen, quick)
 
-            def cell(v: list[float]) -> str:
-                return f"{np.nanmedian(v):.1f}, {np.nanmax(v):.1f}" if len(v) and not np.isnan(v).all() else "-"
 
-            print(f"  {name:9s} {'yes' if gyro else 'no':4s} {len(after):3d}/{len(seeds):<2d} {cell(after):>24s} "
-                  f"{cell(first):>24s} {wrong:6d} {cell(ends):>24s}", flush=True)
+def _jump_row(name: str, gyro: bool, n: int, after: list[float], first: list[float], wrong: int, ends: list[float],
+              extra: str = "") -> None:
+    """One line of ``ground_jump``'s tables: seeds calibrated again, how long after, that calibration's level p95,
+    published worse than 5 deg, the final level p95 (median and worst)."""
+
+    def cell(v: list[float]) -> str:
+        return f"{np.nanmedian(v):.1f}, {np.nanmax(v):.1f}" if len(v) and not np.isnan(v).all() else "-"
+
+    print(f"  {name:9s} {'yes' if gyro else 'no':4s} {len(after):3d}/{n:<2d} {cell(after):>24s} "
+          f"{cell(first):>24s} {wrong:6d} {cell(ends):>24s}{extra}", flush=True)
+
+
+def ground_jump_off(gen: Any, quick: bool) -> None:
+    """The step of ``ground_jump`` put on at 150 s and taken off again at 300 s (450 s): how soon after 300 s a
+    calibration within 5 deg of the first sensor is published again, and how many came back as the calibration of
+    before (``change.py`` ``_check_known``, "sensor changed back")."""
+    t_on, t_off = 150.0, 300.0
+    print(f"  the step taken off again at {t_off:.0f} s (450 s): seeds calibrated again after it, how long after, its "
+          "level p95; 'back': of them, the calibration of before reinstated")
+    for name, seeds in (("tuning", JUMP_TUNING), ("held-out", JUMP_HELD_OUT)):
+        seeds = seeds[:2] if quick else seeds
+        for gyro in (False, True):
+            after, first, ends, wrong, back = [], [], [], 0, 0
+            for s in seeds:
+                rec = gen.generate("mag", "ground", duration_s=450.0, rate_hz=50.0, seed=s, tilt_deg=5.0,
+                                   symmetric_soft_iron=True, hard_iron_mag=30e-6, gyro_scale=0.03,
+                                   effect="hard_iron_jump", magnitude=20e-6 / 48e-6, t_jump=t_on)
+                tr = rec["truth"]
+                rec["xyz"][rec["t"] >= t_off] -= tr["offset_after"] - tr["offset"]
+                mid = {**tr, "offset": tr["offset_after"]}
+                cal, events = _run(rec, gyro=gyro)
+                wrong += sum(_p95(gen, e.calibration, tr if (e.t <= t_on or e.t > t_off) else mid, 0.0) > 5.0
+                             for e in events if not t_off < e.t <= t_off + 5.5)  # before the detector can see it
+                post = [(e.t, _p95(gen, e.calibration, tr, 0.0), e.message) for e in events if e.t > t_off + 5.5]
+                if post:
+                    after.append(post[0][0] - t_off)
+                    first.append(post[0][1])
+                    back += "changed back" in post[0][2]
+                end = cal.calibration
+                ends.append(_p95(gen, end, tr, 0.0) if end is not None and post else np.nan)
+            _jump_row(name, gyro, len(seeds), after, first, wrong, ends, f"  back {back}")
 
 
 def accel(gen: Any) -> None:

@@ -159,6 +159,7 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         self._recentred: Calibration | None = None  # the current calibration when a re-centring (change.py) made it
         self._back_since: float | None = None  # after a change: since when the old calibration explains the samples
         self._pre_change: tuple[Any, Any] | None = None  # the buffer's times and points before the change
+        self._known: tuple[tuple[Any, ...], ...] = ()  # calibrations earlier changes ended (change.py ``_check_known``)
         self._fit_times, self._fit_points = np.zeros(0), np.zeros((0, 3))  # the buffer when the calibration was installed
         self._predicted: float | None = None
         self._figures_due = None  # a full fit's heading figures, computed when next read (evaluation.py)
@@ -317,6 +318,7 @@ class SensorCalibrator(ChangeDetection, Evaluation):
             self._suspect_since += shift
         if self._change_onset is not None:
             self._change_onset += shift
+        self._known = tuple((k[0], k[1] + shift, *k[2:]) for k in self._known)  # their buffers' stamps (change.py)
         self._last_eval_t += shift
         if self._cal is not None:
             self._cal = self._cal.replace(stamp=self._cal.stamp + shift)
@@ -386,6 +388,8 @@ class SensorCalibrator(ChangeDetection, Evaluation):
                 return events
         elif self._changed and (r <= cfg.change_threshold or self._back_since is not None):
             events += self._check_return(t)
+        if self._changed and self._known:
+            events += self._check_known(t)
         self.passed += 1
         if self._buffer.push_finite(t, x, y, z):
             self.kept += 1

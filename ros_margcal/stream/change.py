@@ -22,6 +22,15 @@ withdrawn (``_check_return``): the old calibration is current again, the buffer 
 the samples since that it explains. Without this the buffer kept the bad stretch and every refit failed
 its residual guard rail: the calibrator stayed "collecting after a sensor change" for good.
 
+A change can also undo an earlier one: a payload or magnet taken off again brings back the sensor of before. Each
+declared change keeps the calibration it ended, with its buffer and heading figures (the last ``KNOWN_MAX``); after
+a change, before a new calibration, ``_check_known`` looks among them, other than the current one, for one that
+explains the samples since the onset (median relative residual within twice its fit residual, at most half
+``change_threshold``) where their directions pin the offset (an offset step fitted from it has a standard deviation
+of at most ``max_parameter_std`` and stays within three of them): it is reinstated at once, with its buffer and the
+samples since that it explains, instead of recollecting (a ground robot took a minute). Not in the IMU's frame
+(``calibrate_into_imu_frame`` turns the readings: a kept buffer would be in other axes).
+
 A drift is a change too slow for the detector: a hard iron that moves by 0.05 field norms a minute keeps
 the median residual below ``change_threshold`` when the rechecks refit every ``recheck_interval_s``, but
 the buffer keeps up to ``per_bin`` samples of each direction for minutes, so each refit described the mean
@@ -87,8 +96,15 @@ class ChangeDetection:
     robot driving there for 5 s had the step withdrawn and the old calibration published again, 58 deg off, five times
     in 200 s."""
     RETURN_EVERY_S = 1.0
-    """The change's step is fitted at most this often (a few ms) while the residuals say the change passed."""
+    """The change's step is fitted at most this often (a few ms) while the residuals say the change passed; and a
+    known calibration (``_check_known``) is tried at most this often after a change."""
+    KNOWN_MAX = 3
+    """Calibrations ended by a declared change that a later change may return to (``_check_known``)."""
+    KNOWN_MIN_SAMPLES = 30
+    """Fewest buffered samples since a change's onset for ``_check_known`` (and not static: ``STATIC_SPREAD``)."""
     _return_tried = -float("inf")
+    _known_tried = -float("inf")
+    _known: tuple[tuple[Any, ...], ...] = ()  # (calibration, buffer times, points, partial, figures, prior): oldest first
     _quiet = 0
     # the calibrator's state this mixin uses (set in ``SensorCalibrator.reset``)
     _suspect_since: float | None
@@ -277,8 +293,10 @@ class ChangeDetection:
             self._last_reason = f"no sensor change at t={onset:.2f} s: {hypotheses}"
             log.debug("%s: %s", self.sensor, self._last_reason)
             return []
+        self._remember(onset)  # the calibration this change ends, to return to (_check_known)
         self._changed = True
         self._change_onset = onset
+        self._known_tried = -float("inf")
         self._drop_before_change(onset)  # the series and gyro rows (partial.py)
         self.changes += 1
         self._suspect_since = None
@@ -340,6 +358,58 @@ class ChangeDetection:
                f"for {t - back:.1f} s, {again} samples the change would have missed); it is kept, with the buffer of "
                f"before the change and the {int(keep.sum())} "
                "samples since that it explains")
+        log.debug("%s: %s", self.sensor, msg)
+        self._last_reason = msg
+        return [*events, Event(EventKind.CALIBRATED, t, self.sensor, msg, cal)]
+
+    def _remember(self, onset: float) -> None:
+        """A change is declared at ``onset``: keep the calibration it ends, its heading figures and its buffer from
+        before the onset within half ``change_threshold`` of it (the outlier threshold let in samples of the new
+        sensor where the step barely moved the norm, and the median finds the onset late: they are not this one's)."""
+        cal = self._cal
+        if cal is None or self.KNOWN_MAX < 1:
+            return
+        times, pts = self._buffer.times(), self._buffer.points()
+        ok = (times < onset) & (np.abs(cal.norm_error(pts)) / cal.norm <= 0.5 * self.config.change_threshold)
+        entry = (cal, times[ok], pts[ok], self._partial, self._figures, self._prior)
+        self._known = (*(k for k in self._known if k[0] is not cal), entry)[-self.KNOWN_MAX:]
+
+    def _check_known(self, t: float) -> list[Event]:
+        """After a declared change: reinstate a calibration an earlier change ended when it explains the samples since
+        the onset (module docstring); at most every ``RETURN_EVERY_S``."""
+        if abs(t - self._known_tried) < self.RETURN_EVERY_S or self._mount_applied is not None:
+            return []
+        self._known_tried = t
+        pts = self._buffer.points()  # after a declared change: the samples since its onset
+        if len(pts) < self.KNOWN_MIN_SAMPLES or relative_spread(pts) < STATIC_SPREAD:
+            return []
+        for entry in reversed(self._known):
+            if entry[0] is not self._cal:
+                why = _explains(entry[0], pts, self.config.change_threshold, self.config.max_parameter_std)
+                if why:
+                    return self._reinstate(t, entry, why)
+        return []
+
+    def _reinstate(self, t: float, entry: tuple[Any, ...], why: str) -> list[Event]:
+        """Install a known calibration again, with its buffer, heading figures and the samples since that it explains."""
+        cal, saved_t, saved_p, partial, figures, prior = entry
+        onset = self._change_onset
+        now_t, now_p = self._buffer.times(), self._buffer.points()
+        keep = np.abs(cal.norm_error(now_p)) / cal.norm <= self.config.outlier_threshold
+        buf = self._buffer
+        buf.clear()
+        buf.set_center(cal.offset, cal.raw_radius)
+        for tt, pp in ((saved_t, saved_p), (now_t[keep], now_p[keep])):
+            for ti, p in zip(tt.tolist(), pp.tolist(), strict=True):
+                buf.push_finite(ti, p[0], p[1], p[2])
+        events = self._set_state(State.CALIBRATED, t)
+        self._install(cal)
+        self._fit_times, self._fit_points = saved_t, saved_p  # what it was fitted on (``_missed_before``)
+        self._partial, self._figures, self._prior = partial, figures, prior
+        self._recentred, self._since_eval, self._last_rejection = None, 0, ""
+        msg = (f"sensor changed back: the calibration of t={cal.stamp:.2f} s, which an earlier change ended, explains the "
+               f"samples since the change at t={-1.0 if onset is None else onset:.2f} s ({why}); reinstated, with its "
+               f"buffer and the {int(keep.sum())} samples since that it explains")
         log.debug("%s: %s", self.sensor, msg)
         self._last_reason = msg
         return [*events, Event(EventKind.CALIBRATED, t, self.sensor, msg, cal)]
@@ -431,6 +501,36 @@ class ChangeDetection:
             return ""
         return (f"; the {int(np.count_nonzero(same))} buffered samples from before the onset in the same directions were "
                 f"missed before the onset too (median {pct(then)})")
+
+
+def _explains(cal: Calibration, pts: Array, change_threshold: float, max_std: float) -> str:
+    """Why ``cal`` is the sensor of the raw samples ``pts`` ("" when it is not): their median relative residual under
+    it within twice its fit residual (at least ``_NOISE_FLOOR``, at most half ``change_threshold``), and an offset step
+    fitted from it within three standard deviations of zero, that deviation at most ``max_std`` of the field (the
+    directions pin the offset: a few directions lie on the spheres of many offsets)."""
+    w, b, n = np.asarray(cal.matrix, dtype=np.float64), np.asarray(cal.offset, dtype=np.float64), cal.norm
+    c = (pts - b) @ w.T
+    r = np.linalg.norm(c, axis=1)
+    rel = np.abs(r - n) / n
+    fitted = cal.stats.rms_relative if cal.stats is not None else 0.0
+    tol = min(0.5 * change_threshold, max(2.0 * fitted, _NOISE_FLOOR))
+    med = float(np.median(rel))
+    if not med <= tol or not np.all(r > 0):
+        return ""
+    jac = c / r[:, None]
+    sigma = max(float(np.sqrt(np.mean(rel * rel))), _NOISE_FLOOR / 10.0) * n
+    try:
+        sd = sigma * float(np.sqrt(np.max(np.linalg.eigvalsh(np.linalg.inv(jac.T @ jac))))) / n
+    except np.linalg.LinAlgError:
+        return ""
+    step = _offset_step(c, n)
+    if step is None or not sd <= max_std:
+        return ""
+    moved = float(np.linalg.norm(step)) / n
+    if not moved <= 3.0 * sd:
+        return ""
+    return (f"median residual {pct(med)} <= {pct(tol)} on {len(pts)} samples; an offset step from it "
+            f"{pct(moved)} +- {pct(sd)} of the field")
 
 
 def _offset_step(c: Array, n: float, iterations: int = 20) -> Array | None:
