@@ -18,8 +18,8 @@ the median over the last ``change_window`` samples under the old calibration has
 against a change that hovers at the threshold) for ``change_min_duration_s``, and at least ``RETURN_MIN_SAMPLES``
 of those samples are ones the change would have missed (an offset step fitted to the samples since the onset
 under the old matrix and norm: where a step leaves the norm unchanged, the norm cannot tell), the change is
-withdrawn (``_check_return``): the old calibration is current again, the buffer of before the change comes back with
-the samples since that it explains. Without this the buffer kept the bad stretch and every refit failed
+withdrawn (``_check_return``): the old calibration is current again, the buffer of before the change (its samples
+before the onset that it explains: ``_buffer_before``) comes back with the samples since that it explains. Without this the buffer kept the bad stretch and every refit failed
 its residual guard rail: the calibrator stayed "collecting after a sensor change" for good.
 
 A change can also undo an earlier one: a payload or magnet taken off again brings back the sensor of before. Each
@@ -293,7 +293,8 @@ class ChangeDetection:
             self._last_reason = f"no sensor change at t={onset:.2f} s: {hypotheses}"
             log.debug("%s: %s", self.sensor, self._last_reason)
             return []
-        self._remember(onset)  # the calibration this change ends, to return to (_check_known)
+        before = self._buffer_before(onset)
+        self._remember(before)  # the calibration this change ends, to return to (_check_known)
         self._changed = True
         self._change_onset = onset
         self._known_tried = -float("inf")
@@ -301,7 +302,7 @@ class ChangeDetection:
         self.changes += 1
         self._suspect_since = None
         self._back_since = None
-        self._pre_change = (self._buffer.times(), self._buffer.points())  # back if the change passes (_check_return)
+        self._pre_change = before  # back if the change passes (_check_return)
         pts = np.array(self._recent_v)[first_bad:]
         tt = times[first_bad:]
         self._buffer.clear()
@@ -362,16 +363,24 @@ class ChangeDetection:
         self._last_reason = msg
         return [*events, Event(EventKind.CALIBRATED, t, self.sensor, msg, cal)]
 
-    def _remember(self, onset: float) -> None:
-        """A change is declared at ``onset``: keep the calibration it ends, its heading figures and its buffer from
-        before the onset within half ``change_threshold`` of it (the outlier threshold let in samples of the new
-        sensor where the step barely moved the norm, and the median finds the onset late: they are not this one's)."""
+    def _buffer_before(self, onset: float) -> tuple[Array, Array]:
+        """A change is declared at ``onset``: the buffer's samples (times, points) from before it that the calibration
+        explains within half ``change_threshold`` (the outlier threshold let in samples of the new sensor where the step
+        barely moved the norm, and the median finds the onset late: they are not the old sensor's)."""
+        times, pts = self._buffer.times(), self._buffer.points()
+        cal = self._cal
+        if cal is None or not len(pts):
+            return times, pts
+        ok = (times < onset) & (np.abs(cal.norm_error(pts)) / cal.norm <= 0.5 * self.config.change_threshold)
+        return times[ok], pts[ok]
+
+    def _remember(self, before: tuple[Array, Array]) -> None:
+        """A change is declared: keep the calibration it ends, its heading figures and its buffer from ``before`` the
+        onset (``_buffer_before``) for ``_check_known``."""
         cal = self._cal
         if cal is None or self.KNOWN_MAX < 1:
             return
-        times, pts = self._buffer.times(), self._buffer.points()
-        ok = (times < onset) & (np.abs(cal.norm_error(pts)) / cal.norm <= 0.5 * self.config.change_threshold)
-        entry = (cal, times[ok], pts[ok], self._partial, self._figures, self._prior)
+        entry = (cal, before[0], before[1], self._partial, self._figures, self._prior)
         self._known = (*(k for k in self._known if k[0] is not cal), entry)[-self.KNOWN_MAX:]
 
     def _check_known(self, t: float) -> list[Event]:
