@@ -19,8 +19,9 @@ against a change that hovers at the threshold) for ``change_min_duration_s``, an
 of those samples are ones the change would have missed (an offset step fitted to the samples since the onset
 under the old matrix and norm: where a step leaves the norm unchanged, the norm cannot tell), the change is
 withdrawn (``_check_return``): the old calibration is current again, the buffer of before the change (its samples
-before the onset that it explains: ``_buffer_before``) comes back with the samples since that it explains. Without this the buffer kept the bad stretch and every refit failed
-its residual guard rail: the calibrator stayed "collecting after a sensor change" for good.
+before the onset that it explains: ``_buffer_before``) comes back with the samples since that it explains. Without
+this the buffer kept the bad stretch and every refit failed its residual guard rail: the calibrator stayed
+"collecting after a sensor change" for good.
 
 A change can also undo an earlier one: a payload or magnet taken off again brings back the sensor of before. Each
 declared change keeps the calibration it ended, with its buffer and heading figures (the last ``KNOWN_MAX``); after
