@@ -117,6 +117,8 @@ class ChangeDetection:
     _fit_times: Array
     _fit_points: Array
     _mounting: Mounting | None  # the magnetometer's last mounting estimate (partial.py)
+    _mount_applied: Array | None  # calibrate_into_imu_frame: the rotation the readings are turned by (partial.py)
+    _sliced: Any  # the fit in progress (evaluation.py)
 
     def _stale(self) -> bool:
         """On a recheck: has the calibration gone stale (module docstring)?
@@ -387,7 +389,8 @@ class ChangeDetection:
     def _check_known(self, t: float) -> list[Event]:
         """After a declared change: reinstate a calibration an earlier change ended when it explains the samples since
         the onset (module docstring); at most every ``RETURN_EVERY_S``."""
-        if abs(t - self._known_tried) < self.RETURN_EVERY_S or self._mount_applied is not None:
+        if (abs(t - self._known_tried) < self.RETURN_EVERY_S or self._mount_applied is not None
+                or self._sliced is not None):  # a fit in progress ends first (evaluation.py)
             return []
         self._known_tried = t
         pts = self._buffer.points()  # after a declared change: the samples since its onset
