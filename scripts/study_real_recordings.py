@@ -170,7 +170,7 @@ def reason(path: Path, sensor: str, cal: SensorCalibrator, timeline: list[dict[s
                 f"{gate.plain.learn_cap:.3g}): no still pose for an accelerometer fit")
     changed = [e for e in timeline if e.get("kind") == "changed"]
     if changed:
-        magnet = " (a magnet attached)" if "magnet" in path.name else ""
+        magnet = " (the magnet put on or taken off)" if "magnet" in path.name else ""
         return (f"a sensor change at t={float(changed[-1]['t']):.0f} s{magnet}, too little turning "
                 f"after it to calibrate the changed sensor; final status: {cal.status().message}")
     return f"final status: {cal.status().message}"

@@ -9,8 +9,9 @@ reason, in this order, and acts on it:
 2. *a change*: ``diagnosis.changes.locate_offset_change`` finds an offset step (a magnet attached
    mid-way) in the recording, else in its first or last two thirds (attached, then removed): each side is
    fitted on its own (plain fit, or the prior fit when that side alone is partial), and a side whose fit
-   is refused or leaves a residual above the limit is searched and split once more; every stretch's
-   calibration is returned.
+   is refused or leaves a residual above the limit is searched and split once more, else fitted without the
+   static runs at its ends when that fit passes (a rest somewhere else, the magnet taken off while still:
+   ``_trimmed``); every stretch's calibration is returned.
 3. *partial coverage* (a hemisphere, a ring, a few great circles): ``fitting_prior.fit_with_prior``
    from ``broad_prior`` fits what the directions determine and keeps the rest at the prior, saying
    which parameters are which.
@@ -72,6 +73,8 @@ RESCUE_SHARED_DROP = 0.5
 residual. Lower than the diagnosis's ``changes.MIN_SHARED_DROP`` (0.65), which searches every recording:
 here the search runs only after the plain fit failed or left a residual above the online limit, and each
 side must then fit on its own (BROAD 32, a magnet attached 1 cm away, removes 0.58)."""
+STATIC_WINDOW_S = 1.0
+"""``_static_ends``: the static runs at a stretch's ends are found in windows this long."""
 _LOCATE_POINTS = 6000
 """The change search runs on an evenly spaced subsample of at most this many points (as the diagnosis)."""
 
@@ -286,6 +289,59 @@ def _span(t: Array) -> str:
     return f"{float(t[0]):.1f} to {float(t[-1]):.1f} s" if len(t) else "empty"
 
 
+def _static_ends(t: Array, points: Array) -> tuple[int, int]:
+    """``(lo, hi)``: the stretch without its static runs at either end (``STATIC_WINDOW_S`` windows whose readings stay
+    within ``STATIC_SPREAD`` of their mean; a window of fewer than 3 readings counts as turning)."""
+    w = np.floor((t - t[0]) / STATIC_WINDOW_S).astype(np.intp)
+    _, starts = np.unique(w, return_index=True)
+    ends = np.r_[starts[1:], len(t)]
+    turning = [b - a < 3 or relative_spread(points[a:b]) >= STATIC_SPREAD for a, b in zip(starts, ends, strict=True)]
+    if not any(turning):
+        return 0, 0
+    i, j = turning.index(True), len(turning) - 1 - turning[::-1].index(True)
+    lo, hi = int(starts[i]), int(ends[j])
+    # into the windows where the sensor came to rest or started: the readings as near the rest's mean as its own
+    if lo > 0:
+        lo = _rest_edge(points, lo, range(lo, hi))
+    if hi < len(points):
+        hi = _rest_edge(points, hi - 1, range(hi - 1, lo - 1, -1), tail=True)
+    return lo, hi
+
+
+def _rest_edge(points: Array, edge: int, walk: range, tail: bool = False) -> int:
+    """The first reading of ``walk`` (from the turning side's edge toward it) farther from the rest's mean than 3x the
+    rest's RMS spread (at least 1e-9 of its norm): the rest, ``points[:edge]`` (``tail``: ``points[edge + 1:]``), ends
+    there."""
+    rest = points[edge + 1:] if tail else points[:edge]
+    mean = rest.mean(axis=0)
+    reach = max(3.0 * float(np.sqrt(np.mean(np.sum((rest - mean) ** 2, axis=1)))), 1e-9 * float(np.linalg.norm(mean)))
+    for k in walk:
+        if float(np.linalg.norm(points[k] - mean)) > reach:
+            return k + 1 if tail else k
+    return walk.stop + 1 if tail else walk.stop
+
+
+def _trimmed(t: Array, points: Array, failure: str, kw: dict[str, object]) -> list[Part] | None:
+    """A stretch whose fit was refused, without the static runs at its ends, when that fits and passes (module
+    docstring); None otherwise. A still sensor somewhere else (a table with iron in it, the magnet taken off while it
+    rests) is one direction no change search can split off (a static side visits no azimuths) and a few thousand
+    samples of it outweigh the turning ones."""
+    lo, hi = _static_ends(t, points)
+    if (lo == 0 and hi == len(points)) or hi - lo < _MIN_POINTS:
+        return None
+    cfg, unit = kw["cfg"], str(kw["unit"])
+    try:
+        cal = fit(points[lo:hi], model=str(kw["model"]), method="lm", norm=kw["norm"], loss=str(kw["loss"]),  # type: ignore[arg-type]
+                  sensor=str(kw["sensor"]), unit=unit).replace(stamp=float(t[hi - 1]))
+    except (ConvergenceError, DegenerateDataError):
+        return None
+    if check(cal, cfg) or residual_note(cal, cfg, float(kw.get("noise", 0.0))):  # type: ignore[arg-type]
+        return None
+    note = f"static: no calibration (the fit with it was refused: {failure})"
+    return ([Part(_span(t[:lo]), None, lo, note=note)] if lo else []) + [Part(_span(t[lo:hi]), cal, hi - lo)] + (
+        [Part(_span(t[hi:]), None, len(t) - hi, note=note)] if hi < len(t) else [])
+
+
 def _segment(t: Array, points: Array, label: str, depth: int, kw: dict[str, object]) -> list[Part]:
     """The calibrations of one stretch: nothing if static, the plain fit, a further split, or the prior fit."""
     n = len(points)
@@ -303,17 +359,20 @@ def _segment(t: Array, points: Array, label: str, depth: int, kw: dict[str, obje
         why = str(exc)
     else:
         high = "" if why else residual_note(cal, cfg, float(kw.get("noise", 0.0)))  # type: ignore[arg-type]
-        if not why and not (high and depth > 0):
+        if not why and not high:
             return [Part(label, cal, n)]
     if depth > 0:
         ch = _locate(t, points)
-        if ch is None and not why:  # a residual above the limit without a change: the plain fit stands
-            return [Part(label, cal, n)]
         if ch is not None:
             before = t < ch.t
             kw["changes"].append(ch.t)  # type: ignore[attr-defined]
             return (_segment(t[before], points[before], _span(t[before]), depth - 1, kw)
                     + _segment(t[~before], points[~before], _span(t[~before]), depth - 1, kw))
+    trimmed = _trimmed(t, points, why or high, kw)
+    if trimmed is not None:
+        return trimmed
+    if not why:  # a residual above the limit without a change: the plain fit stands
+        return [Part(label, cal, n)]
     pf = _prior_fit(points, kw["norm"], str(kw["sensor"]), unit, stamp)  # type: ignore[arg-type]
     return [Part(label, pf.calibration, n, pf, note=f"plain fit: {why}; fitted with the prior instead")]
 
@@ -389,9 +448,11 @@ def _change(t: Array | None, pts: Array, failure: str, *, model: str, norm: floa
              *_segment(times[~before], pts[~before], _span(times[~before]), 1, kw))
     more = sorted(changes[1:])
     also = f" (and at {', '.join(f'{c:.2f}' for c in more)} s)" if more else ""
+    fitted = sum(1 for p in parts if p.calibration is not None)
+    still = f" and {len(parts) - fitted} static stretch(es)" if fitted < len(parts) else ""
     reason = (f"the offset changed at t = {ch.t:.2f} s by {ch.step:.4g}{u} ({100 * ch.relative_step:.3g} % of "
               f"the field; the split removes {100 * ch.drop:.3g} % of one ellipsoid's residual){also}: the "
-              f"recording holds {len(parts)} calibrations, fitted on each stretch")
+              f"recording holds {fitted} calibrations{still}, fitted on each stretch")
     return Rescue("change", reason, parts, ch, [f"requested fit: {failure}", reason])
 
 
