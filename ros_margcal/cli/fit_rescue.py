@@ -289,6 +289,19 @@ def _span(t: Array) -> str:
     return f"{float(t[0]):.1f} to {float(t[-1]):.1f} s" if len(t) else "empty"
 
 
+def _plain_fit(t: Array, points: Array, kw: dict[str, object]) -> tuple[Calibration | None, str, str]:
+    """The plain fit of a stretch (stamped with its end), why it is refused (the fit's error or the plausibility
+    check) and, when it is not, whether its residual is above the limit (``residual_note``); "" for none."""
+    cfg = kw["cfg"]
+    try:
+        cal = fit(points, model=str(kw["model"]), method="lm", norm=kw["norm"], loss=str(kw["loss"]),  # type: ignore[arg-type]
+                  sensor=str(kw["sensor"]), unit=str(kw["unit"])).replace(stamp=float(t[-1]) if len(t) else 0.0)
+    except (ConvergenceError, DegenerateDataError) as exc:
+        return None, str(exc), ""
+    why = check(cal, cfg)  # type: ignore[arg-type]
+    return cal, why, "" if why else residual_note(cal, cfg, float(kw.get("noise", 0.0)))  # type: ignore[arg-type]
+
+
 def _static_ends(t: Array, points: Array) -> tuple[int, int]:
     """``(lo, hi)``: the stretch without its static runs at either end (``STATIC_WINDOW_S`` windows whose readings stay
     within ``STATIC_SPREAD`` of their mean; a window of fewer than 3 readings counts as turning)."""
@@ -329,13 +342,8 @@ def _trimmed(t: Array, points: Array, failure: str, kw: dict[str, object]) -> li
     lo, hi = _static_ends(t, points)
     if (lo == 0 and hi == len(points)) or hi - lo < _MIN_POINTS:
         return None
-    cfg, unit = kw["cfg"], str(kw["unit"])
-    try:
-        cal = fit(points[lo:hi], model=str(kw["model"]), method="lm", norm=kw["norm"], loss=str(kw["loss"]),  # type: ignore[arg-type]
-                  sensor=str(kw["sensor"]), unit=unit).replace(stamp=float(t[hi - 1]))
-    except (ConvergenceError, DegenerateDataError):
-        return None
-    if check(cal, cfg) or residual_note(cal, cfg, float(kw.get("noise", 0.0))):  # type: ignore[arg-type]
+    cal, why, high = _plain_fit(t[lo:hi], points[lo:hi], kw)
+    if cal is None or why or high:
         return None
     note = f"static: no calibration (the fit with it was refused: {failure})"
     return ([Part(_span(t[:lo]), None, lo, note=note)] if lo else []) + [Part(_span(t[lo:hi]), cal, hi - lo)] + (
@@ -350,17 +358,9 @@ def _segment(t: Array, points: Array, label: str, depth: int, kw: dict[str, obje
     spread = relative_spread(points) if n else 0.0
     if n < _MIN_POINTS or spread < STATIC_SPREAD:
         return [Part(label, None, n, note=f"static ({100 * spread:.2g} % spread): no calibration")]
-    cfg = kw["cfg"]
-    try:
-        cal = fit(points, model=str(kw["model"]), method="lm", norm=kw["norm"], loss=str(kw["loss"]),  # type: ignore[arg-type]
-                  sensor=str(kw["sensor"]), unit=unit).replace(stamp=stamp)
-        why = check(cal, cfg)  # type: ignore[arg-type]
-    except (ConvergenceError, DegenerateDataError) as exc:
-        why = str(exc)
-    else:
-        high = "" if why else residual_note(cal, cfg, float(kw.get("noise", 0.0)))  # type: ignore[arg-type]
-        if not why and not high:
-            return [Part(label, cal, n)]
+    cal, why, high = _plain_fit(t, points, kw)
+    if not why and not high:
+        return [Part(label, cal, n)]
     if depth > 0:
         ch = _locate(t, points)
         if ch is not None:

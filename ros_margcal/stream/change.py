@@ -164,9 +164,26 @@ class ChangeDetection:
         keep = fresh | ~np.isin(bins, bins[fresh])
         if keep.all():
             return
+        self._refill((times[keep], pts[keep]))
+
+    def _refill(self, *parts: tuple[Array, Array], centre: Calibration | None = None) -> None:
+        """Empty the buffer (centred on ``centre``'s offset when given) and push ``parts`` (times, points) in order."""
+        buf = self._buffer
         buf.clear()
-        for ti, p in zip(times[keep].tolist(), pts[keep].tolist(), strict=True):
-            buf.push_finite(ti, p[0], p[1], p[2])
+        if centre is not None:
+            buf.set_center(centre.offset, centre.raw_radius)
+        for tt, pp in parts:
+            for ti, p in zip(tt.tolist(), pp.tolist(), strict=True):
+                buf.push_finite(ti, p[0], p[1], p[2])
+
+    def _explained_since(self, cal: Calibration) -> tuple[Array, Array]:
+        """The buffered samples (after a declared change: those since its onset) ``cal`` explains within the outlier
+        threshold: what a calibration coming back keeps of them."""
+        times, pts = self._buffer.times(), self._buffer.points()
+        if not len(pts):
+            return times, pts
+        keep = np.abs(cal.norm_error(pts)) / cal.norm <= self.config.outlier_threshold
+        return times[keep], pts[keep]
 
     def _drifting(self) -> bool:
         """The current calibration is a re-centring (a drift is on: ``_drift_hold``)."""
@@ -347,20 +364,15 @@ class ChangeDetection:
             return []  # explained only where the change shows no norm error: wait (the window grows from ``back``)
         cal, onset = self._cal, self._change_onset
         saved, self._pre_change = self._pre_change, None
-        now_t, now_p = self._buffer.times(), self._buffer.points()
-        keep = np.abs(cal.norm_error(now_p)) / cal.norm <= cfg.outlier_threshold if len(now_p) else np.zeros(0, bool)
+        now = self._explained_since(cal)
         events = self._set_state(State.CALIBRATED, t)
         self._install(cal)
-        buf = self._buffer
-        buf.clear()
-        for tt, pp in ((*saved,) if saved is not None else (np.zeros(0), np.zeros((0, 3))), (now_t[keep], now_p[keep])):
-            for ti, p in zip(tt.tolist(), pp.tolist(), strict=True):
-                buf.push_finite(ti, p[0], p[1], p[2])
+        self._refill(saved if saved is not None else (np.zeros(0), np.zeros((0, 3))), now)
         self._since_eval = 0
         msg = (f"no sensor change after all: the change at t={-1.0 if onset is None else onset:.2f} s passed; since "
                f"t={back:.2f} s the calibration explains the samples again (median residual {pct(med)} <= {pct(limit)} "
                f"for {t - back:.1f} s, {again} samples the change would have missed); it is kept, with the buffer of "
-               f"before the change and the {int(keep.sum())} "
+               f"before the change and the {len(now[0])} "
                "samples since that it explains")
         log.debug("%s: %s", self.sensor, msg)
         self._last_reason = msg
@@ -407,14 +419,8 @@ class ChangeDetection:
         """Install a known calibration again, with its buffer, heading figures and the samples since that it explains."""
         cal, saved_t, saved_p, partial, figures, prior = entry
         onset = self._change_onset
-        now_t, now_p = self._buffer.times(), self._buffer.points()
-        keep = np.abs(cal.norm_error(now_p)) / cal.norm <= self.config.outlier_threshold
-        buf = self._buffer
-        buf.clear()
-        buf.set_center(cal.offset, cal.raw_radius)
-        for tt, pp in ((saved_t, saved_p), (now_t[keep], now_p[keep])):
-            for ti, p in zip(tt.tolist(), pp.tolist(), strict=True):
-                buf.push_finite(ti, p[0], p[1], p[2])
+        now = self._explained_since(cal)
+        self._refill((saved_t, saved_p), now, centre=cal)
         events = self._set_state(State.CALIBRATED, t)
         self._install(cal)
         self._fit_times, self._fit_points = saved_t, saved_p  # what it was fitted on (``_missed_before``)
@@ -422,7 +428,7 @@ class ChangeDetection:
         self._recentred, self._since_eval, self._last_rejection = None, 0, ""
         msg = (f"sensor changed back: the calibration of t={cal.stamp:.2f} s, which an earlier change ended, explains the "
                f"samples since the change at t={-1.0 if onset is None else onset:.2f} s ({why}); reinstated, with its "
-               f"buffer and the {int(keep.sum())} samples since that it explains")
+               f"buffer and the {len(now[0])} samples since that it explains")
         log.debug("%s: %s", self.sensor, msg)
         self._last_reason = msg
         return [*events, Event(EventKind.CALIBRATED, t, self.sensor, msg, cal)]
