@@ -119,7 +119,8 @@ _FLOAT_PARAMS: dict[str, tuple[float, float, str]] = {
     "max_offset": (0.0, 1.0e9, "guard rail: absolute |offset| limit in the sensor's unit, besides max_offset_ratio "
                                "(default: the unit's); 0.0 = none"),
     "max_heading_p95_deg": (0.01, 180.0, "partial calibration: largest predicted heading p95 at the tilt seen, deg"),
-    "early_heading_p95_deg": (0.01, 180.0, "early fit on rich motion: largest predicted heading p95 at 30 deg tilt, deg"),
+    "early_heading_p95_deg": (0.01, 180.0, "early fit on rich motion: largest predicted heading p95 at 30 deg tilt "
+                                           "(max_heading_p95_deg over more than half the sphere), deg"),
     "near_level_tilt_deg": (0.0, 90.0, "magnetometer: a ring this flat is held level without a gyro (a car); 0.0 = never "
                                         "(a sensor mounted tilted)"),
 }

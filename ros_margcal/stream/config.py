@@ -147,7 +147,8 @@ class PipelineConfig:
     # rotation is decided (model/mounting.py)
     partial_min_azimuth: float = 0.9  # ... turned about body z: share of 36 azimuth sectors the field visits
     early_fit: bool = True  # rich motion, uncalibrated: publish a MAP fit once its predicted heading p95 is small ...
-    early_heading_p95_deg: float = 1.0  # ... at most this at +-30 deg tilt
+    early_heading_p95_deg: float = 1.0  # ... at most this at +-30 deg tilt (max_heading_p95_deg once its directions
+    # fill more than half the sphere: stream/observable.py RICH_REGIONS), refined by early fits while above this
     early_interval_s: float = 0.5  # evaluation cadence while an early fit is close to passing
     prior_inflate: float = 4.0  # covariance factor on a previous calibration used as the prior
     heading_inclination_deg: float | None = None  # field inclination for the heading figures (None: from the data)
