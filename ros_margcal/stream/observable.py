@@ -54,8 +54,9 @@ published when its predicted heading p95 at ±30° tilt is at most ``early_headi
 ``max_heading_p95_deg`` (2.5°, the standard of every partial fit) once its directions fill more than half the sphere
 (``RICH_REGIONS``: over a part, a real sensor's fit extrapolates what its bound cannot see): the covariance says when
 the data suffice, instead of the validator's coverage rule and a fixed cadence.
-An early fit of the first seconds that was still a ring or band (tilted at most ``partial_max_tilt_deg``) is
-published on its figure at the tilt seen, as any partial fit; while the ±30° figure of such an early calibration
+An early fit of the first seconds that was still a ring or band (tilted at most ``partial_max_tilt_deg``, its
+directions in fewer than ``RICH_REGIONS`` regions) is published on its figure at the tilt seen, as any partial fit;
+while the ±30° figure of such an early calibration
 exceeds ``early_heading_p95_deg`` and the series is short, early fits go on, each replacing it when its figure is
 lower (as any partial refit; one of motion tilted past a ring's is judged on its ±30° figure, as above): a tumble
 that began flat otherwise kept its first calibration, 1.4° off at 30°, until the full path's fit at 9 s.
@@ -152,7 +153,10 @@ when its calibrated directions fill at least this many of the 12 regions of ``fi
 each): more than half the sphere, over which the ellipsoid interpolates; else at ``early_heading_p95_deg``. A real
 sensor is not one ellipsoid everywhere: the sunsided HMC5883L's fit of its first 18.5 s (5 regions) is 3.5 deg at 30
 deg from the whole recording's, and the stream's fit of them, published at 2.5 deg with a 2.24 deg bound, missed it;
-the independent generator's tumbles fill 7-8 regions when their bound first reaches 2.5 deg (``regions_seen``)."""
+the independent generator's tumbles fill 7-8 regions when their bound first reaches 2.5 deg (``regions_seen``).
+A fit whose directions fill this many is also rich motion, whatever its tilt seen: a ring or band fills 4 (the
+independent generator's ground robots, bands and car), and a tumble whose tilt seen stayed at 45 deg was refused as a
+ring that had turned through 72 % of the azimuths while it filled 7-9 regions."""
 REGION_MIN_POINTS = 3
 
 
@@ -448,13 +452,16 @@ def partial_fit_steps(series: Array, prior: Calibration | None, cfg: PipelineCon
                                  f"{', '.join(pf.updated) or 'no parameter'}; "
                                  f"{', '.join(pf.from_prior) or 'none'} need more poses", sigma=pf.residual_sigma)
         tilt = tilt_seen_deg(cal, series)
-        rich = not tilt <= cfg.partial_max_tilt_deg
+        # a ring or band fills 4 of the 12 regions, a tumble's first seconds 7 and more however far its tilt goes
+        regions = regions_seen(cal, series)
+        rich = not tilt <= cfg.partial_max_tilt_deg or regions >= RICH_REGIONS
         # the cheap verdicts first: a fit they refuse needs no norm uncertainty and no heading figures
         if rich and not (cfg.early_fit and (current is None or early)):
             shown, limit = apart(tilt, cfg.partial_max_tilt_deg)
+            what = (f"the data are tilted up to {shown} deg > {limit} deg" if tilt > cfg.partial_max_tilt_deg else
+                    f"the directions fill {regions} of {len(REGIONS)} regions of the sphere >= {RICH_REGIONS}")
             return PartialResult(cal, pf.updated, pf.from_prior, kind, tilt, math.inf, None,
-                                 f"partial fit: the data are tilted up to {shown} deg > {limit} "
-                                 "deg, not a ring or band: the full path decides", sigma=pf.residual_sigma,
+                                 f"partial fit: {what}, not a ring or band: the full path decides", sigma=pf.residual_sigma,
                                  gyro_explained=pf.gyro_explained, gyro_used=pf.gyro_used, gyro_frame=pf.gyro_frame,
                                  level=pf.level)
         azimuth = azimuth_coverage(cal, series)
@@ -481,7 +488,6 @@ def partial_fit_steps(series: Array, prior: Calibration | None, cfg: PipelineCon
         return PartialResult(None, (), SYM_NAMES, kind, math.nan, math.inf, None, f"partial fit failed: {exc}")
     limit, part = cfg.max_heading_p95_deg, ""
     if rich:  # over more than half the sphere the partial standard, else the early one (RICH_REGIONS)
-        regions = regions_seen(cal, series)
         limit = max(cfg.early_heading_p95_deg, limit) if regions >= RICH_REGIONS else cfg.early_heading_p95_deg
         part = "" if regions >= RICH_REGIONS else f" (directions in {regions} of {len(REGIONS)} regions < {RICH_REGIONS})"
     reason, over = "", None
