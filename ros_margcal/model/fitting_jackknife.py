@@ -37,7 +37,7 @@ from .calibration import Calibration
 from .errors import DegenerateDataError, InputError, as_points
 from .fitting_prior import NAMES, linearised_at
 
-__all__ = ["MIN_REGIONS", "REGIONS", "grouped_jackknife", "jackknife_at", "t_factor"]
+__all__ = ["MIN_REGIONS", "REGIONS", "grouped_jackknife", "jackknife_at", "region_of", "t_factor"]
 
 Array = NDArray[np.float64]
 
@@ -97,6 +97,13 @@ def grouped_jackknife(jt: Array, r: Array, sigma: float, info: Array, prior_grad
     return 0.5 * (cov + cov.T), g - 1
 
 
+def region_of(points: Array, cal: Calibration) -> NDArray[np.intp]:
+    """The region (index into ``REGIONS``) of each of ``points``' calibrated directions: the nearest vertex (the
+    length of ``W (v - b)`` does not change it)."""
+    w, b = np.asarray(cal.matrix, dtype=np.float64), np.asarray(cal.offset, dtype=np.float64)
+    return np.argmax((points - b) @ w.T @ REGIONS.T, axis=1)
+
+
 def jackknife_at(points: ArrayLike, cal: Calibration, prior: Calibration) -> tuple[Calibration, int]:
     """``cal`` with the delete-a-region jackknife covariance of the MAP problem linearised at it (module docstring),
     and its degrees of freedom (regions holding samples, minus one).
@@ -106,8 +113,7 @@ def jackknife_at(points: ArrayLike, cal: Calibration, prior: Calibration) -> tup
     """
     pts = as_points(points, "points")
     lin = linearised_at(pts, cal, prior)
-    w, b = np.asarray(cal.matrix, dtype=np.float64), np.asarray(cal.offset, dtype=np.float64)
-    region = np.argmax((pts - b) @ w.T @ REGIONS.T, axis=1)  # the nearest vertex (the length does not change it)
+    region = region_of(pts, cal)
     if len(np.unique(region)) < MIN_REGIONS:
         msg = (f"the samples fill {len(np.unique(region))} of the {len(REGIONS)} direction regions, the jackknife "
                f"needs {MIN_REGIONS}")

@@ -99,7 +99,7 @@ from ..model.calibration import Calibration
 from ..model.errors import DegenerateDataError, InputError, MargCalError
 from ..model.fitting_core import parameter_names
 from ..model.fitting_gyro import GyroBlocks
-from ..model.fitting_jackknife import REGIONS, jackknife_at, t_factor
+from ..model.fitting_jackknife import REGIONS, jackknife_at, region_of, t_factor
 from ..model.fitting_level import circle_centre
 from ..model.fitting_prior import broad_prior, fit_with_prior_steps, posterior_at
 from ..model.heading import (
@@ -158,17 +158,13 @@ A fit whose directions fill this many is also rich motion, whatever its tilt see
 independent generator's ground robots, bands and car), and a tumble whose tilt seen stayed at 45 deg was refused as a
 ring that had turned through 72 % of the azimuths while it filled 7-9 regions."""
 REGION_MIN_POINTS = 3
+"""Fewest points for ``regions_seen`` to count a region as seen (one stray point is no coverage)."""
 
 
 def regions_seen(cal: Calibration, raw: Array) -> int:
     """How many of the 12 regions of ``fitting_jackknife.REGIONS`` (about 63 deg across) hold at least
     ``REGION_MIN_POINTS`` of ``raw``'s calibrated directions."""
-    h = cal.apply(raw)
-    n = np.linalg.norm(h, axis=1)
-    ok = n > 0
-    if not ok.any():
-        return 0
-    counts = np.bincount(np.argmax((h[ok] / n[ok, None]) @ REGIONS.T, axis=1), minlength=len(REGIONS))
+    counts = np.bincount(region_of(raw, cal), minlength=len(REGIONS))
     return int(np.count_nonzero(counts >= REGION_MIN_POINTS))
 
 
