@@ -64,7 +64,7 @@ from .ranking import (
 )
 from .stages import clipped_shares, stage_gaps
 from .twin import DEFAULT_N_FIT, FIT_ERRORS, Baseline, Twin, build_twin, mean_features
-from .twin_fits import MIN_SAMPLES, StaticRecording
+from .twin_fits import MIN_SAMPLES, StaticRecording, static_reason
 
 __all__ = ["NONE_GAP", "Diagnosis", "diagnose", "diagnose_holdout", "validator_downstream"]
 
@@ -288,9 +288,11 @@ def diagnose(
         raise
     except FIT_ERRORS as exc:  # a recording that makes no usable twin still gets a verdict, with the reason
         log.info("no twin: %s", exc)
-        # a static recording's repeated readings are no clipping: it is static, not saturated
-        verdict = _no_twin(sensor, len(t), str(exc), time.monotonic() - t0,
-                           None if isinstance(exc, StaticRecording) else raw)
+        # a static recording's repeated readings are no clipping: it is static, not saturated (also when its
+        # readings are one value throughout, which the fits refuse before they test for a static recording)
+        static = "" if isinstance(exc, StaticRecording) else static_reason(raw)
+        verdict = _no_twin(sensor, len(t), static or str(exc), time.monotonic() - t0,
+                           None if isinstance(exc, StaticRecording) or static else raw)
         verdict.time_restarts = restarts
         return verdict
     seeds = base.seeds[:n_seeds]

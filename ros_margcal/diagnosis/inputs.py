@@ -8,6 +8,7 @@ order they were taken; sorted by time its parts would interleave.
 
 from __future__ import annotations
 
+import itertools
 import logging
 import math
 from typing import Any
@@ -83,8 +84,9 @@ def file_order_times(t: Array) -> tuple[Array, list[int]]:
     forward = steps[(steps > 0) & (steps <= CLOCK_JUMP_S)]
     dt = float(np.median(forward)) if forward.size else 0.0
     out = times.copy()
-    for i in back:
-        out[i + 1:] += out[i] + dt - out[i + 1]
+    ends = [*(back + 1).tolist(), len(times)]
+    for start, end in itertools.pairwise(ends):  # each part from its own first stamp: a 1e30 s glitch
+        out[start:end] = (times[start:end] - times[start]) + (out[start - 1] + dt)  # added to 1e3 s would erase it
     return out, [int(i) for i in back]
 
 

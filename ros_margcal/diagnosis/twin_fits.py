@@ -78,10 +78,11 @@ def static_reason(raw: Array) -> str:
     spread = float(np.sqrt(max(float(np.linalg.eigvalsh(centred.T @ centred / len(pts))[-1]), 0.0)))
     white = rest_noise(pts)
     level = float(np.linalg.norm(pts.mean(axis=0)))
-    if not (spread <= STATIC_SPREAD * white and white <= STATIC_NOISE_SHARE * level):
+    one = not np.ptp(pts, axis=0).any()  # one reading throughout (its spread above is rounding, ~1e-19 T)
+    if not (one or (spread <= STATIC_SPREAD * white and white <= STATIC_NOISE_SHARE * level)):
         return ""
-    ratio = f"{spread / white:.1f} times" if white > 0 else "no more than"
-    return (f"static: the sensor did not move (its readings spread {ratio} their noise, one direction "
+    ratio = f"spread {spread / white:.1f} times their noise" if white > 0 else "spread no more than their noise"
+    return (f"static: the sensor did not move (its readings {'are one value' if one else ratio}, one direction "
             "throughout); a diagnosis needs a recording that turns the sensor through many directions. A static "
             "recording measures the rest noise: pass it as --rest-recording with a recording that turns")
 

@@ -111,6 +111,15 @@ def test_a_static_recording_is_unexplained_as_static(lsb: float | None, tmp_path
     assert "cause: unexplained (static: the sensor did not move" in summary(d)
 
 
+def test_one_reading_throughout_is_static_not_clipped() -> None:
+    """Every reading the same value (a stuck or static logger): static, not 'saturation' because each axis sits
+    at its extreme reading (the fits refused the identical points before testing for a static recording)."""
+    rec = Recording(t=np.arange(3000) * 0.02, raw=np.tile([3e-5, 1e-5, -4e-5], (3000, 1)), sensor="mag", unit="T")
+    d = diagnose(rec, sensor="mag", quick=True)
+    assert d.cause == "unexplained" and d.cause_effects == [], (d.cause, d.reason)
+    assert d.reason.startswith("static: the sensor did not move (its readings are one value"), d.reason
+
+
 @pytest.mark.parametrize("name", ["sunsided_hmc5883l_static_10min_mag.csv",
                                   "sunsided_mpu6050_unmoved-with-x-pointing-forward_acc.csv"])
 def test_real_static_recordings_are_static(name: str, real_recording: Any) -> None:
@@ -231,6 +240,29 @@ def test_a_clock_jumping_ahead_by_years_is_continued_like_a_restart() -> None:
     np.testing.assert_allclose(out, 0.1 * np.arange(10), atol=1e-3)  # 1e12 s stamps hold 0.1 ms steps to 1e-4
     paused = np.r_[0.1 * np.arange(5), 3600.0 + 0.1 * np.arange(5)]
     assert file_order_times(paused)[1] == []
+
+
+def test_one_far_future_stamp_leaves_the_times_in_order() -> None:
+    """One glitched stamp (1e30 s) between clean ones: every part continues the one before, the times stay finite,
+    ordered and 0.1 s apart (adding the 1e30 s shift to the stamps after it rounded them all to one value)."""
+    t = 0.1 * np.arange(10)
+    t[4] = 1e30
+    out, restarts = file_order_times(t)
+    assert restarts == [3, 4]
+    np.testing.assert_allclose(out, 0.1 * np.arange(10), atol=1e-9)
+
+
+def test_a_recording_with_one_far_future_stamp_is_diagnosed() -> None:
+    """The fuzzed CSV: one stamp of 1e30 s halfway; diagnosed in file order (it was 'unexplained: t must be finite
+    and non-decreasing' after the times were said to be continued)."""
+    rec = _stream(duration=20.0)
+    half = len(rec.t) // 2
+    rec.t = rec.t.copy()
+    rec.t[half] = 1e30
+    d = diagnose(rec, sensor="mag", quick=True)
+    assert d.time_restarts == [half - 1, half]
+    assert "non-decreasing" not in d.reason and d.twin is not None, d.reason
+    assert np.all(np.diff(d.twin.t) >= 0) and float(d.twin.t[-1] - d.twin.t[0]) < 30.0
 
 
 def test_a_recording_whose_clock_jumps_by_years_is_diagnosed() -> None:
