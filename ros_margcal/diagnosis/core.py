@@ -290,9 +290,8 @@ def diagnose(
         log.info("no twin: %s", exc)
         # a static recording's repeated readings are no clipping: it is static, not saturated (also when its
         # readings are one value throughout, which the fits refuse before they test for a static recording)
-        static = "" if isinstance(exc, StaticRecording) else static_reason(raw)
-        verdict = _no_twin(sensor, len(t), static or str(exc), time.monotonic() - t0,
-                           None if isinstance(exc, StaticRecording) or static else raw)
+        static = isinstance(exc, StaticRecording) or bool(static_reason(raw))
+        verdict = _no_twin(sensor, len(t), str(exc), time.monotonic() - t0, None if static else raw)
         verdict.time_restarts = restarts
         return verdict
     seeds = base.seeds[:n_seeds]

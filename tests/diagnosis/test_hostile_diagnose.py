@@ -113,7 +113,8 @@ def test_a_static_recording_is_unexplained_as_static(lsb: float | None, tmp_path
 
 def test_one_reading_throughout_is_static_not_clipped() -> None:
     """Every reading the same value (a stuck or static logger): static, not 'saturation' because each axis sits
-    at its extreme reading (the fits refused the identical points before testing for a static recording)."""
+    at its extreme reading (its spread, 1e-19 T of rounding, was above its noise, 0: not static, and the fits then
+    refused the identical points)."""
     rec = Recording(t=np.arange(3000) * 0.02, raw=np.tile([3e-5, 1e-5, -4e-5], (3000, 1)), sensor="mag", unit="T")
     d = diagnose(rec, sensor="mag", quick=True)
     assert d.cause == "unexplained" and d.cause_effects == [], (d.cause, d.reason)
