@@ -45,6 +45,10 @@ def position_options(args: argparse.Namespace) -> dict[str, Any]:
         return {}
     if args.lat is None or args.lon is None:
         raise ConfigError(f"a position needs --lat and --lon, got --lat {args.lat} and --lon {args.lon}")
+    if not (math.isfinite(args.lat) and -90.0 <= args.lat <= 90.0):  # in the user's words, before the config's
+        raise ConfigError(f"--lat must be a latitude in [-90, 90] deg, got {args.lat}")
+    if not (math.isfinite(args.lon) and -180.0 <= args.lon <= 360.0):
+        raise ConfigError(f"--lon must be a longitude in [-180, 360] deg east, got {args.lon}")
     if not math.isfinite(args.alt):
         raise ConfigError(f"--alt must be a finite number of metres, got {args.alt}")
     opts: dict[str, Any] = {"latitude_deg": args.lat, "longitude_deg": args.lon, "altitude_m": args.alt}

@@ -69,8 +69,10 @@ def test_norm_by_hand_wins(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -
 
 @pytest.mark.parametrize(("extra", "match"), [
     (("--lat", "48.1"), "a position needs --lat and --lon, got --lat 48.1 and --lon None"),
-    (("--lat", "95", "--lon", "11.6"), r"latitude_deg must be in \[-90, 90\], got 95.0"),
-    (("--lat", "nan", "--lon", "11.6"), "latitude_deg must be in"),
+    (("--lat", "95", "--lon", "11.6"), r"--lat must be a latitude in \[-90, 90\] deg, got 95.0"),
+    (("--lat", "nan", "--lon", "11.6"), "--lat must be a latitude in"),
+    (("--lat", "48.1", "--lon", "500"), r"--lon must be a longitude in \[-180, 360\] deg east, got 500.0"),
+    (("--lat", "48.1", "--lon=-inf"), "--lon must be a longitude in"),
     (("--lat", "48.1", "--lon", "11.6", "--date", "2031-01-01"), r"the date 2031.000 is outside WMM2025's validity"),
     (("--lat", "48.1", "--lon", "11.6", "--date", "1.7.2026"), "--date must be YYYY-MM-DD, got '1.7.2026'"),
     (("--date", "2026-07-02"), "--alt and --date need a position"),
