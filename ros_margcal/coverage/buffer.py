@@ -24,7 +24,9 @@ buffered points G:
 
 and their unit-free versions, so one trained validator serves any sensor and unit:
 ``b_frac = B / (2 hist_bins)``, ``c_norm = C / (6 r)``, ``d_norm = D / (4/3 pi r^3)`` with ``r`` the
-fitted radius (or, before a fit, the mean distance of the points from the centre).
+radius the calibrator sets (a sphere fit's, then the calibration's RMS radius, ``Calibration.rms_radius``: the
+validator's training sets were normalised by a sphere fit's; the equal-volume radius put an anisotropic sensor's
+full coverage at ``c_norm`` 1.09) or, without one, the mean distance of the points from the centre.
 
 The buffer updates the indicators on every insert and evict instead of recomputing them: sorted lists
 give the quartiles (A) and the per-axis extremes (C), bin counts give B, and an incremental hull

@@ -215,6 +215,13 @@ class Calibration:
         """Field radius in raw units: the radius ``norm / |det W|^(1/3)`` of the raw ellipsoid's equal-volume sphere."""
         return float(self.norm / abs(float(np.linalg.det(self.matrix))) ** (1.0 / 3.0))
 
+    @property
+    def rms_radius(self) -> float:
+        """RMS distance of the raw ellipsoid from its centre over uniform field directions, ``norm sqrt(tr(W^-1 W^-T)
+        / 3)``: the radius a sphere fit of readings that cover every direction finds (``raw_radius`` for a round one)."""
+        inv = np.linalg.inv(self.matrix)
+        return float(self.norm * math.sqrt(float(np.sum(inv * inv)) / 3.0))
+
     def inverse_apply(self, calibrated: ArrayLike) -> Array:
         """Raw reading of a physical vector: ``W^-1 h + b`` (what the simulator needs)."""
         h = np.asarray(calibrated, dtype=np.float64)

@@ -241,7 +241,9 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         self._fit_times, self._fit_points = self._buffer.times(), self._buffer.points()  # what it was fitted on (change)
         old = self._buffer.center  # a move within CENTER_MOVE_TOLERANCE keeps the bins (no re-binning)
         near = float(np.linalg.norm(cal.offset - old)) <= self.CENTER_MOVE_TOLERANCE * cal.raw_radius
-        self._buffer.set_center(old if near else cal.offset, cal.raw_radius)
+        # the indicators' radius as the validator's training sets had it, a sphere fit's (an anisotropic sensor's
+        # equal-volume radius put its full coverage at c_norm 1.09, where the validator predicts 4 % error)
+        self._buffer.set_center(old if near else cal.offset, cal.rms_radius)
 
     # -- the sample path --------------------------------------------------------------------------
 

@@ -171,7 +171,7 @@ class ChangeDetection:
         buf = self._buffer
         buf.clear()
         if centre is not None:
-            buf.set_center(centre.offset, centre.raw_radius)
+            buf.set_center(centre.offset, centre.rms_radius)  # as _install
         for tt, pp in parts:
             for ti, p in zip(tt.tolist(), pp.tolist(), strict=True):
                 buf.push_finite(ti, p[0], p[1], p[2])
@@ -327,7 +327,7 @@ class ChangeDetection:
         tt = times[first_bad:]
         self._buffer.clear()
         cal = self._cal
-        self._buffer.set_center(np.zeros(3) if cal is None else cal.offset, 1.0 if cal is None else cal.raw_radius)
+        self._buffer.set_center(np.zeros(3) if cal is None else cal.offset, 1.0 if cal is None else cal.rms_radius)
         for ti, p in zip(tt, pts, strict=True):
             self._buffer.push(float(ti), p)
         self._since_eval = len(self._buffer)

@@ -227,6 +227,31 @@ def test_raw_radius_is_the_equal_volume_radius_of_the_raw_ellipsoid() -> None:
     assert Calibration(np.zeros(3), 0.5 * np.eye(3), norm=2.0).raw_radius == pytest.approx(4.0, rel=1e-15)
 
 
+def test_rms_radius_is_the_sphere_fit_radius_of_full_coverage() -> None:
+    """``rms_radius`` is the radius a least-squares sphere fit finds on readings that cover every direction (what the
+    validator's training sets are normalised by); for a round sensor it is ``raw_radius``."""
+    w = np.array([[1.5, -0.03, 0.0], [-0.03, 1.0, 0.05], [0.0, 0.05, 0.68]])  # axes 2.2x apart, as a real QMC5883L's
+    cal = Calibration(np.array([6200.0, 250.0, 3470.0]), w, norm=1070.0)
+    k = np.arange(20000) + 0.5
+    polar, azim = np.arccos(1.0 - 2.0 * k / k.size), np.pi * (1.0 + 5.0**0.5) * k
+    u = np.c_[np.cos(azim) * np.sin(polar), np.sin(azim) * np.sin(polar), np.cos(polar)]
+    raw = cal.inverse_apply(cal.norm * u)
+    a = np.c_[2.0 * raw, np.ones(len(raw))]
+    sol = np.linalg.lstsq(a, (raw * raw).sum(axis=1), rcond=None)[0]
+    sphere = float(np.sqrt(sol[3] + sol[:3] @ sol[:3]))
+    assert cal.rms_radius == pytest.approx(sphere, rel=1e-3)
+    assert cal.rms_radius > 1.05 * cal.raw_radius  # the equal-volume radius is well below it
+    assert Calibration(np.zeros(3), 0.5 * np.eye(3), norm=2.0).rms_radius == pytest.approx(4.0, rel=1e-15)
+
+
+@settings(max_examples=50, deadline=None)
+@given(arrays(np.float64, (3, 3), elements=st.floats(-0.4, 0.4)), st.floats(1e-6, 1e3))
+def test_rms_radius_is_at_least_the_equal_volume_radius(a: np.ndarray, norm: float) -> None:
+    """The quadratic mean of the semi-axes is never below their geometric mean (equal for a round ellipsoid)."""
+    cal = Calibration(np.zeros(3), np.eye(3) + 0.5 * (a + a.T), norm=norm)
+    assert cal.rms_radius >= cal.raw_radius * (1.0 - 1e-12)
+
+
 def test_arrays_are_read_only(true_cal: Calibration) -> None:
     """A calibration cannot be corrupted in place through its arrays."""
     with pytest.raises(ValueError, match="read-only"):
