@@ -17,7 +17,7 @@ from .calibration import MODELS, Calibration, FitStats
 from .calibration_file import calibration_from_yaml, calibration_to_yaml, load_calibrations, save_calibrations
 from .errors import (
     CalibrationFileError, ConfigError, ConvergenceError, DegenerateDataError, InputError, MargCalError,
-    RecordingError, as_points, as_vector3, one_line
+    RecordingError, RunawayError, as_points, as_vector3, one_line
 )
 from .fitting import LOSSES, METHODS, fit, residuals
 from .fitting_core import (
@@ -39,7 +39,7 @@ __all__ = [
     "BROAD_MATRIX_STD", "BROAD_OFFSET_STD", "FIELD_MODEL", "LOSSES", "METHODS", "MODELS", "N_PARAMS", "OFF",
     "ROTATIONS", "UPDATED_VARIANCE_RATIO", "Calibration", "CalibrationFileError", "ConfigError", "ConvergenceError",
     "DegenerateDataError", "FitStats", "GeomagField", "InputError", "MargCalError", "Mounting", "Prepared",
-    "PriorFit", "RecordingError", "abs_model", "algebraic", "as_points", "as_vector3", "attitudes", "broad_prior",
+    "PriorFit", "RecordingError", "RunawayError", "abs_model", "algebraic", "as_points", "as_vector3", "attitudes", "broad_prior",
     "calibration_from_yaml", "calibration_to_yaml", "check_geometry", "check_singular", "decimal_year",
     "distance_km", "field_at", "find_mounting", "finish", "fit", "fit_with_prior", "format_bound",
     "format_position", "gn_covariance", "gram", "heading_gradient", "heading_p95", "heading_p95_quantile",

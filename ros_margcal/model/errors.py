@@ -11,7 +11,7 @@ from numpy.typing import ArrayLike, NDArray
 
 __all__ = [
     "CalibrationFileError", "ConfigError", "ConvergenceError", "DegenerateDataError", "InputError", "MargCalError",
-    "RecordingError", "as_points", "as_vector3", "one_line"]
+    "RecordingError", "RunawayError", "as_points", "as_vector3", "one_line"]
 
 
 class MargCalError(ValueError):
@@ -28,6 +28,11 @@ class DegenerateDataError(MargCalError):
 
 class ConvergenceError(MargCalError):
     """An iterative fit did not converge to a usable solution."""
+
+
+class RunawayError(ConvergenceError):
+    """A fit ran away to no sensor's ellipsoid: more iterations, or a few more samples of the same directions, will not
+    help (other directions or a steadier field may)."""
 
 
 class CalibrationFileError(MargCalError):

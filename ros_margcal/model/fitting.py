@@ -65,7 +65,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.linalg.blas import idamax
 
 from .calibration import MODELS, Calibration
-from .errors import ConfigError, ConvergenceError, DegenerateDataError, as_points
+from .errors import ConfigError, ConvergenceError, DegenerateDataError, RunawayError, as_points
 from .fitting_core import (
     N_PARAMS,
     Prepared,
@@ -233,7 +233,7 @@ def _ran_away(exc: ConvergenceError, model: str, what: str) -> ConvergenceError:
     if positive and ratio <= RUNAWAY_AXIS_RATIO:
         return exc
     shape = f"axes {ratio:.3g} times apart" if positive else "W not positive definite"
-    return ConvergenceError(f"{what} did not converge: it ran away to no sensor's ellipsoid ({shape}), more iterations "
+    return RunawayError(f"{what} did not converge: it ran away to no sensor's ellipsoid ({shape}), more iterations "
                             "will not help; the readings cover too few directions, or lie on no one ellipsoid (iron or a "
                             "magnet moving near the sensor)")
 

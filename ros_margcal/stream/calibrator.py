@@ -149,6 +149,7 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         self._time_base_note = ""
         self._since_eval = 0
         self._last_eval_t = -math.inf
+        self._runaways = 0
         self._t = 0.0
         self._state = State.COLLECTING
         self._cal: Calibration | None = None
@@ -322,6 +323,7 @@ class SensorCalibrator(ChangeDetection, Evaluation):
             self._change_onset += shift
         self._known = tuple((k[0], k[1] + shift, *k[2:]) for k in self._known)  # their buffers' stamps (change.py)
         self._last_eval_t += shift
+        self._full_eval_t += shift  # the back-offs' clock (evaluation.py)
         if self._cal is not None:
             self._cal = self._cal.replace(stamp=self._cal.stamp + shift)
         if self._gate is not None:

@@ -8,7 +8,8 @@ the centre update and the validator under the caller's lock, the fit on a snapsh
 result installed under it again, a fit whose data went stale meanwhile dropped. An evaluation on
 materially unchanged data (same bins, nearly the same buffer size and recent residual) is skipped with
 an exponential back-off, so a robot that never covers more directions does not pay for the same
-refusal over and over. Inline, a full fit's posterior for the heading figures (``posterior_at``: the next
+refusal over and over; a full fit that ran away (``RunawayError``) is retried after 1, 2, 4, 8 s (``RUNAWAY_MAX_WAIT_S``),
+the buffer growing or not. Inline, a full fit's posterior for the heading figures (``posterior_at``: the next
 prior) is not computed in the push that installs it but when next needed (``_settle_figures``: the next push,
 ``status``, or an evaluation right after), so one push pays for the fit or for it, not for both; the figures
 themselves (a few ms each: the posterior's draws) are computed when a status first reads them
@@ -39,7 +40,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..model.calibration import Calibration
-from ..model.errors import MargCalError
+from ..model.errors import MargCalError, RunawayError
 from ..model.fitting import fit
 from ..model.steps import Steps, drained
 from .config import PipelineConfig, apart, guard_rails, white_noise
@@ -68,6 +69,10 @@ class Evaluation(PartialCalibration):
     """First back-off on unchanged data, s (or the cadence interval if longer); it doubles per repeat ..."""
     SKIP_MAX_WAIT_S = 120.0
     """... up to this, s (or the cadence interval if longer)."""
+    RUNAWAY_MAX_WAIT_S = 8.0
+    """A full fit that ran away (``model.errors.RunawayError``: the readings cover too few directions for the noise, or
+    lie on no one ellipsoid) is retried after 1, 2, 4 ... s, at most this, until another verdict: a noisy QMC5883L's
+    half sphere ran away at every 1 s evaluation for 44 s, ~15 ms each (``_runaway_wait``)."""
     CENTER_MOVE_TOLERANCE = 0.002
     """A centre estimate that moved less than this share of the radius keeps the old centre (the radius is
     still updated): a 0.2 % move turns a direction by < 0.12 deg, far below a bin's ~20 deg ..."""
@@ -85,6 +90,7 @@ class Evaluation(PartialCalibration):
     _last_full: tuple[tuple[Any, ...], tuple[Any, ...]] | None = None  # what the last full evaluation saw
     _full_eval_t: float = -math.inf
     _backoff: int = 0
+    _runaways: int = 0  # full fits in a row that ran away (RUNAWAY_MAX_WAIT_S)
     _figures_due: tuple[dict[str, Any], Calibration] | None = None  # an installed full fit whose figures are not read yet
     _sliced: tuple[dict[str, Any], Steps[tuple[Calibration | None, str]]] | None = None
     """Inline, the fit in progress: its job and its remaining steps, one run per push (**Fits in steps**)."""
@@ -218,7 +224,7 @@ class Evaluation(PartialCalibration):
             self._pending = None
         else:
             interval = self._cadence()[1]
-            if self._unchanged(t, interval):
+            if self._unchanged(t, interval) or t - self._full_eval_t < self._runaway_wait():
                 return []
             if self.defer_evaluation:
                 self._pending = t
@@ -232,6 +238,10 @@ class Evaluation(PartialCalibration):
             return events + self._fit_finish(job, self._fit_compute(job))
         self._sliced = (job, self._fit_steps(job))
         return events + self._fit_step()
+
+    def _runaway_wait(self) -> float:
+        """Seconds before a full evaluation after ``_runaways`` fits in a row ran away (0 after none or one)."""
+        return 0.0 if self._runaways < 2 else min(2.0 ** (self._runaways - 1), self.RUNAWAY_MAX_WAIT_S)
 
     def finish_fit(self) -> list[Event]:
         """Run the fit in progress (**Fits in steps**) to its end now, its events: at the end of a recording, whose
@@ -372,6 +382,7 @@ class Evaluation(PartialCalibration):
             reason = guard_rails(cal, cfg, job["recent"], None if job.get("current_is_map") else job["current"],
                                  noise=job.get("noise", 0.0))
         except (ValueError, ArithmeticError) as exc:  # MargCalError is a ValueError, as is LinAlgError
+            job["runaway"] = isinstance(exc, RunawayError)
             return None, f"fit failed: {exc}"
         if not reason and job.get("gyro_rows"):
             yield
@@ -400,6 +411,7 @@ class Evaluation(PartialCalibration):
             log.debug("%s: fit from t=%.2f s dropped: reset, change or new calibration meanwhile", self.sensor, t)
             return []
         cal, reason = result
+        self._runaways = self._runaways + 1 if job.get("runaway") else 0
         if cal is None and job.get("partial"):  # not good enough yet: keep collecting, say why
             self._partial_note = reason
             self._partial_close(job)
