@@ -89,6 +89,9 @@ log = logging.getLogger(__name__)
 """What an Event also says is logged at debug level only: replay's timeline and the node's log print the events
 (each once); warnings are for what no event carries."""
 
+_WAITING = "waiting for samples"
+"""The reason before any evaluation; the status then counts what is buffered (24 pose readings said \"waiting\")."""
+
 Array = NDArray[np.float64]
 
 class SensorCalibrator(ChangeDetection, Evaluation):
@@ -167,7 +170,7 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         self._sliced = None  # the fit in progress, a step per push (evaluation.py)
         self._indicators: Any = None
         self._last_rejection = ""
-        self._last_reason = "waiting for samples"
+        self._last_reason = _WAITING
         self.fits_accepted = 0
         self.fits_rejected = 0
         self.changes = 0
@@ -507,6 +510,8 @@ class SensorCalibrator(ChangeDetection, Evaluation):
                        f"0 of {self.passed} samples still for >= {self._gate.window_s:g} s{self._gate_figures()}: hold "
                        f"the sensor still in a few poses, or for a noisy sensor "
                        f"{raise_hint(self.sensor, 'gate_cv_threshold')}")
+            elif self._last_reason == _WAITING and len(self._buffer):  # no evaluation yet (refit_every samples): say so
+                msg = f"collecting: {len(self._buffer)} samples buffered, need {self.config.min_points}"
             else:
                 msg = f"collecting: {self._last_reason}"
             msg += self._static_note()

@@ -269,6 +269,16 @@ def test_a_stream_of_drops_says_so_in_the_status() -> None:
     assert "every sample dropped" in msg and "magnitude" in msg
 
 
+def test_a_few_pose_readings_say_how_many_are_buffered(tumbling_mag: sim.Recording) -> None:
+    """24 readings (a cave-survey device's calibration shots: fewer than one evaluation's ``refit_every``) said
+    'waiting for samples' while 13 of them were buffered: the status counts them before any evaluation."""
+    cal = SensorCalibrator("mag")
+    _feed(cal, tumbling_mag.t[:24], tumbling_mag.raw[:24])
+    n = len(cal.buffer)
+    assert 0 < n <= 24
+    assert f"collecting: {n} samples buffered, need {cal.config.min_points}" in cal.status().message
+
+
 # -- item 4: every sample counted once -------------------------------------------------------------
 
 
