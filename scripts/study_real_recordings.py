@@ -33,7 +33,7 @@ import numpy as np
 import yaml
 
 from ros_margcal.cli.calibrate import still_samples
-from ros_margcal.cli.fit_rescue import check, config_for, rescue, residual_note
+from ros_margcal.cli.fit_rescue import check, config_for, rescue, residual_note, rests_apart
 from ros_margcal.model.calibration import Calibration
 from ros_margcal.model.errors import ConvergenceError, DegenerateDataError, RecordingError
 from ros_margcal.model.fitting import fit
@@ -113,6 +113,11 @@ def batch_stretches(path: Path, sensor: str, unit: str) -> tuple[list[Calibratio
     except (ConvergenceError, DegenerateDataError) as exc:
         cal, why, high = None, str(exc), ""
     if not why and not high:
+        if sensor == "mag":  # a rest in another field left out, as margcal calibrate does (fit_rescue.rests_apart)
+            apart = rests_apart(np.asarray(rec.t, dtype=np.float64), pts, model="sym", norm=None, loss="linear",
+                                sensor=sensor, unit=unit, cfg=cfg, noise=noise)
+            if apart is not None:
+                return [apart[0]], "lm, a rest in another field left out"
         return [cal], "lm"
     res = rescue(None if sensor == "accel" else np.asarray(rec.t, dtype=np.float64), pts, failure=why or high,
                  model="sym", norm=None, loss="linear", sensor=sensor, unit=unit, cfg=cfg, change_only=not why,

@@ -63,6 +63,7 @@ from .fit_rescue import (
     reading_scale,
     rescue,
     residual_note,
+    rests_apart,
     screen,
 )
 from .position import add_position_args, field_line, position_options, radius_note
@@ -324,6 +325,13 @@ def run(args: argparse.Namespace) -> int:
         print(f"warning: {high} (no offset change located: motion or disturbances?)", file=sys.stderr)
     if cal is None:
         raise ConvergenceError(failure)
+    if not (failure or high or args.no_rescue) and times is not None and args.method == "lm":
+        apart = rests_apart(times, points, model=model if model in SUPPORTED["lm"] else "sym", norm=prior_norm,
+                            loss=args.loss, sensor=sensor, unit=unit, cfg=cfg, noise=noise)
+        if apart is not None:  # a rest in another field pulled the fit toward it (fit_rescue.rests_apart)
+            cal, note = apart
+            print(f"note: {note}", file=sys.stderr)
+            extra["left_out"] = note
     if last_stamp is not None:
         cal = cal.replace(stamp=last_stamp)
     _print(cal, str(args.input), n_read, fixed)
