@@ -334,17 +334,25 @@ def _rest_edge(points: Array, edge: int, walk: range, tail: bool = False) -> int
     return walk.stop + 1 if tail else walk.stop
 
 
+def _turning_fit(t: Array, points: Array, kw: dict[str, object]) -> tuple[int, int, Calibration] | None:
+    """``(lo, hi, calibration)``: the plain fit of the stretch without the static runs at its ends
+    (``_static_ends``), when there are such runs and that fit passes; None otherwise."""
+    lo, hi = _static_ends(t, points)
+    if (lo == 0 and hi == len(points)) or hi - lo < _MIN_POINTS:
+        return None
+    cal, why, high = _plain_fit(t[lo:hi], points[lo:hi], kw)
+    return None if cal is None or why or high else (lo, hi, cal)
+
+
 def _trimmed(t: Array, points: Array, failure: str, kw: dict[str, object]) -> list[Part] | None:
     """A stretch whose fit was refused, without the static runs at its ends, when that fits and passes (module
     docstring); None otherwise. A still sensor somewhere else (a table with iron in it, the magnet taken off while it
     rests) is one direction no change search can split off (a static side visits no azimuths) and a few thousand
     samples of it outweigh the turning ones."""
-    lo, hi = _static_ends(t, points)
-    if (lo == 0 and hi == len(points)) or hi - lo < _MIN_POINTS:
+    got = _turning_fit(t, points, kw)
+    if got is None:
         return None
-    cal, why, high = _plain_fit(t[lo:hi], points[lo:hi], kw)
-    if cal is None or why or high:
-        return None
+    lo, hi, cal = got
     note = f"static: no calibration (the fit with it was refused: {failure})"
     return ([Part(_span(t[:lo]), None, lo, note=note)] if lo else []) + [Part(_span(t[lo:hi]), cal, hi - lo)] + (
         [Part(_span(t[hi:]), None, len(t) - hi, note=note)] if hi < len(t) else [])
@@ -362,19 +370,13 @@ def rests_apart(t: Array, points: Array, *, model: str, norm: float | None, loss
     (6 % and 9 % off; their fits 1.9-2.5 deg from their turning part's) where the stream said "sensor changed"."""
     kw: dict[str, object] = {"model": model, "norm": norm, "loss": loss, "sensor": sensor, "unit": unit, "cfg": cfg,
                              "noise": noise}
-    lo, hi = _static_ends(t, points)
-    if (lo == 0 and hi == len(points)) or hi - lo < _MIN_POINTS:
+    got = _turning_fit(t, points, kw)
+    if got is None:
         return None
-    turning, why, high = _plain_fit(t[lo:hi], points[lo:hi], kw)
-    if turning is None or why or high:
-        return None
-
-    def off(part: Array) -> float:
-        return float(np.median(np.abs(turning.norm_error(part)) / turning.norm)) if len(part) else 0.0
-
+    lo, hi, turning = got
     # beyond the change threshold and twice the turning part's own median (its noise: the stream's no-change tolerance)
-    limit = max(cfg.change_threshold, 2.0 * off(points[lo:hi]))
-    head, tail = off(points[:lo]), off(points[hi:])
+    limit = max(cfg.change_threshold, 2.0 * turning.median_relative_error(points[lo:hi]))
+    head, tail = turning.median_relative_error(points[:lo]), turning.median_relative_error(points[hi:])
     keep_lo = 0 if head <= limit else lo
     keep_hi = len(points) if tail <= limit else hi
     if keep_lo == 0 and keep_hi == len(points):

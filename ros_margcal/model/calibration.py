@@ -210,6 +210,12 @@ class Calibration:
         """``|W (raw - b)| - norm`` per sample: the residual every fit minimises."""
         return np.linalg.norm(np.atleast_2d(self.apply(raw)), axis=1) - self.norm
 
+    def median_relative_error(self, raw: ArrayLike) -> float:
+        """Median of ``|W (v - b)| / norm - 1`` in magnitude over readings ``raw`` (0 for none): how far they sit off
+        the field this calibration expects, robust to a few outliers (the change detector's and the rests' measure)."""
+        pts = np.atleast_2d(np.asarray(raw, dtype=np.float64))
+        return float(np.median(np.abs(self.norm_error(pts)) / self.norm)) if pts.size else 0.0
+
     @property
     def raw_radius(self) -> float:
         """Field radius in raw units: the radius ``norm / |det W|^(1/3)`` of the raw ellipsoid's equal-volume sphere."""

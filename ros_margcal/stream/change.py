@@ -482,11 +482,8 @@ class ChangeDetection:
             reason = guard_rails(cal, cfg, post, None)
         except (ValueError, ArithmeticError) as exc:
             return None, f"{old_text}; one calibration for the buffer and the window could not be fitted ({exc})", both
-
-        def median(c: Calibration, pts: Array) -> float:
-            return float(np.median(np.abs(c.norm_error(pts)) / c.norm)) if len(pts) else 0.0
-
-        single_post, single_buf, old_buf = median(cal, post), median(cal, buf), median(old, buf)
+        single_post, single_buf = cal.median_relative_error(post), cal.median_relative_error(buf)
+        old_buf = old.median_relative_error(buf)
         tol = min(cfg.change_threshold, max(2.0 * old_buf, _NOISE_FLOOR))
         before = self._missed_before(post, float(self._recent_t[first_bad]), med)
         if before:  # the same directions were as poor before the onset: a poor calibration there, not a change
@@ -515,7 +512,7 @@ class ChangeDetection:
         same = (times < onset) & np.array([buf.bin_of(p) in bins for p in pts])
         if np.count_nonzero(same) < 3:
             return ""
-        then = float(np.median(np.abs(old.norm_error(pts[same])) / old.norm))
+        then = old.median_relative_error(pts[same])
         if then < 0.5 * med:
             return ""
         return (f"; the {int(np.count_nonzero(same))} buffered samples from before the onset in the same directions were "

@@ -359,7 +359,7 @@ class Evaluation(PartialCalibration):
         recent = job["recent"]
         if cal is None or job["current"] is None or len(recent) < cfg.change_window:
             return ""
-        med = float(np.median(np.abs(cal.norm_error(recent)) / cal.norm))
+        med = cal.median_relative_error(recent)
         if med <= cfg.change_threshold:
             return ""
         got, limit = apart(100 * med, 100 * cfg.change_threshold)

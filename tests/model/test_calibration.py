@@ -227,6 +227,14 @@ def test_raw_radius_is_the_equal_volume_radius_of_the_raw_ellipsoid() -> None:
     assert Calibration(np.zeros(3), 0.5 * np.eye(3), norm=2.0).raw_radius == pytest.approx(4.0, rel=1e-15)
 
 
+def test_median_relative_error_is_the_median_norm_miss() -> None:
+    """Readings 2 %, 4 % and 30 % off the norm (and one exact): the median magnitude, 3 %; none: 0."""
+    cal = Calibration(np.array([1.0, 2.0, 3.0]), 2.0 * np.eye(3), norm=10.0)
+    raw = cal.inverse_apply(np.array([[10.2, 0, 0], [0, -9.6, 0], [0, 0, 13.0], [6.0, 8.0, 0.0]]))
+    assert cal.median_relative_error(raw) == pytest.approx(0.03, rel=1e-12)
+    assert cal.median_relative_error(np.zeros((0, 3))) == 0.0
+
+
 def test_rms_radius_is_the_sphere_fit_radius_of_full_coverage() -> None:
     """``rms_radius`` is the radius a least-squares sphere fit finds on readings that cover every direction (what the
     validator's training sets are normalised by); for a round sensor it is ``raw_radius``."""
