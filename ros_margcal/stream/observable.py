@@ -66,7 +66,8 @@ A refit replaces a partial
 calibration when its predicted heading figure at the tilt seen is lower (instead of the not-worse check
 on the last few seconds' residual, which noise decides as often as the data); a refit whose data show more tilt
 is judged at the tilt the current calibration was judged at (like with like: more tilt alone raises the figure, and
-a ±20° band's refit on 50 % more data was refused for it). The level and ±30° figures go
+a ±20° band's refit on 50 % more data was refused for it); one whose newest points misfit far more than the rest
+(``TAIL_FACTOR``) is refused first: its series straddles a change not declared yet. The level and ±30° figures go
 into the status, so a user sees that a calibration good when level is poor once the robot tilts past
 what it covered. They are computed when first read (``HeadingFigures``: a few ms each, the posterior's draws):
 a ring's fit is judged on the figure at the tilt seen alone, so a refused refit pays for no other figure, and an
@@ -147,6 +148,14 @@ mean vertical share by about ``1 - cos a``, and over few turns its tilt toward t
 independent generator's ±20° band 44-58° for 60°, where the bound then missed the error at the true field's."""
 
 
+TAIL_POINTS, TAIL_FACTOR = 10, 4.0
+"""A refit of a published partial calibration whose RMS residual over the newest ``TAIL_POINTS`` series points (2 s at
+the defaults) is above ``TAIL_FACTOR`` times that over the rest is refused: the newest samples are not of the sensor
+the rest are (a change the detector has not declared yet). A ground robot's refit 2.5 s after a 20 uT step, whose
+residuals stayed under the detector's threshold (3-5.7 %), read 11x, took the step for tilt and was published 57 deg
+off the sensor after the step (5 deg off the one before); the independent generator's refits on rings: at most
+2.4x (90 of them, tuning seeds; 2.1x over 101 on others). Checked first: a series that straddles a change makes
+no refit."""
 RICH_REGIONS = 7
 """A fit of motion tilted past a ring's is published at ``max_heading_p95_deg`` (the standard of every partial fit)
 when its calibrated directions fill at least this many of the 12 regions of ``fitting_jackknife.REGIONS`` (3 points
@@ -391,6 +400,18 @@ def partial_fit(series: Array, prior: Calibration | None, cfg: PipelineConfig, *
     return drained(partial_fit_steps(series, prior, cfg, **kwargs))
 
 
+def _tail_misfit(cal: Calibration, series: Array) -> float:
+    """RMS relative residual of ``cal`` over the newest ``TAIL_POINTS`` of ``series`` over that of the rest (0 when the
+    series is shorter than four tails or the rest fits exactly)."""
+    pts = np.asarray(series, dtype=np.float64)
+    if len(pts) < 4 * TAIL_POINTS:
+        return 0.0
+    e = cal.norm_error(pts) / cal.norm
+    rest = float(np.sqrt(np.mean(e[:-TAIL_POINTS] ** 2)))
+    tail = float(np.sqrt(np.mean(e[-TAIL_POINTS:] ** 2)))
+    return tail / rest if rest > 0 and math.isfinite(tail) else 0.0
+
+
 def partial_fit_steps(series: Array, prior: Calibration | None, cfg: PipelineConfig, *, recent: Array,
                       spread: Array | None = None,
                       current: Calibration | None, stamp: float, sensor: str,
@@ -487,7 +508,10 @@ def partial_fit_steps(series: Array, prior: Calibration | None, cfg: PipelineCon
         limit = max(cfg.early_heading_p95_deg, limit) if regions >= RICH_REGIONS else cfg.early_heading_p95_deg
         part = "" if regions >= RICH_REGIONS else f" (directions in {regions} of {len(REGIONS)} regions < {RICH_REGIONS})"
     reason, over = "", None
-    if not seen <= limit:
+    if current_heading is not None and (tail := _tail_misfit(cal, series)) > TAIL_FACTOR:
+        reason = (f"partial refit: its residual over the newest {TAIL_POINTS} series points is {tail:.1f}x that over "
+                  "the rest: they are not of the same sensor (a change the detector has not declared yet?)")
+    elif not seen <= limit:
         where = f"at 30 deg tilt{part}" if rich else f"at the tilt seen ({tilt:.1f} deg)"
         reason = (f"partial fit: predicted heading error p95 {where} {format_bound(seen)} > {limit:g} deg" if math.isfinite(seen)
                   else f"partial fit: predicted heading error {where} not determined (no finite covariance)")

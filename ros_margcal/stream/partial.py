@@ -96,6 +96,13 @@ class PartialCalibration:
     """Uncalibrated, with an early fit's predicted heading error within this factor of its limit, the
     evaluation cadence is ``early_interval_s`` and half ``refit_every``: the stopping rule is the
     covariance's, checked often while it is about to pass."""
+    CLOSE_FALL = 0.05
+    """Uncalibrated, a *series* fit refused on a heading figure within ``EARLY_CLOSE`` of its limit is retried after one
+    more series point when its figure fell by at least this share since the last such fit, else after twice the
+    points the last retry waited for (up to ``CLOSE_MAX_POINTS``): a ring's figure often stalls for seconds (its
+    tilt seen moves it too), and retried at every evaluation a ±20° band cost a fit every half second for 15 s."""
+    CLOSE_MAX_POINTS = 32
+    """... (about 6 s of series points at the default ``partial_period_s``)."""
     EARLY_POINTS = 100
     """An early fit takes the recent samples as at most this many block means (a tumble's first seconds at
     50 Hz: blocks of up to 5 samples, 0.1 s): the same information for white noise, a fifth of the work."""
@@ -152,6 +159,8 @@ class PartialCalibration:
         self._figures: HeadingFigures | None = None
         self._prior: Calibration | None = None
         self._early_close = False  # the last early fit's predicted heading error was within EARLY_CLOSE x its limit
+        self._close_seen: float | None = None  # the last close series fit's figure, uncalibrated (CLOSE_FALL) ...
+        self._close_wait = 1  # ... and the series points the next one waits for
         self._early_installed = False  # the current calibration is an early fit's (``_early_open``)
         self._partial_growth = self.PARTIAL_GROWTH  # share of the series to wait for before the next partial fit
         self._early_sigma: float | None = None  # the residual noise of the last early fit
@@ -218,6 +227,8 @@ class PartialCalibration:
         if res is not None and res.over_limit is None and res.heading_seen_deg <= limit and not job.get("early"):
             self._early_close = False  # refused on its guard rails: more data, not the early cadence (it had retried a
             # series fit at every evaluation for minutes, uncalibrated)
+        self._close_backoff(res if (self._early_close and res is not None and res.over_limit and not job.get("early")
+                                    and self._early_open()) else None)
         grow = self.PARTIAL_GROWTH  # also for an early fit's heading refusal: a tumble's figure falls fast
         if res is not None and res.over_limit and not job.get("early") and math.isfinite(res.heading_seen_deg):
             grow = res.heading_seen_deg / res.over_limit - 1.0
@@ -232,6 +243,15 @@ class PartialCalibration:
             if self._az_watch is None:
                 break
             self._watch_point(px, py, pz)
+
+    def _close_backoff(self, res: PartialResult | None) -> None:
+        """After a close series fit refused on its heading figure (``res``; None after any other fit): the series
+        points the next one waits for (``CLOSE_FALL``)."""
+        prev, self._close_seen = self._close_seen, None if res is None else res.heading_seen_deg
+        if res is None or prev is None or res.heading_seen_deg <= (1.0 - self.CLOSE_FALL) * prev:
+            self._close_wait = 1
+        else:
+            self._close_wait = min(2 * self._close_wait, self.CLOSE_MAX_POINTS)
 
     def _watch_azimuths(self, cal: Calibration | None, series: Array | None) -> None:
         """After a fit refused on the azimuths turned through: watch the new series points' azimuths under
@@ -316,7 +336,7 @@ class PartialCalibration:
             return False
         grown = self._series_count - self._series_at_attempt
         if early and self._early_close:  # about to pass: the cadence (early_interval_s) decides, not the growth
-            return self._series_at_attempt < 0 or grown >= 1
+            return self._series_at_attempt < 0 or grown >= self._close_wait  # (1 but on a stalled ring: CLOSE_FALL)
         return self._series_at_attempt < 0 or grown >= max(1, self._partial_growth * self._series_len_at_attempt)
 
     def _early_open(self) -> bool:
@@ -460,6 +480,7 @@ class PartialCalibration:
             self._series_times.popleft()
         self._series_at_attempt, self._series_len_at_attempt = -1, 0
         self._partial_growth, self._partial_start, self._az_watch = self.PARTIAL_GROWTH, None, None
+        self._close_seen, self._close_wait = None, 1
 
     def _turn_readings(self, q: Array) -> None:
         """From now on the series and the gyro rows hold readings turned by ``q`` into the IMU's axes (their rates are
