@@ -61,7 +61,7 @@ from ..model.fitting_level import LEVEL_TILT_STD_DEG
 from ..model.heading import format_bound
 from ..model.mounting import Mounting, find_mounting_steps, into_imu_frame, turned
 from ..model.steps import Steps
-from .config import PipelineConfig
+from .config import STATIC_SPREAD, PipelineConfig, relative_spread
 from .observable import (
     AZIMUTH_SECTORS,
     SIGMA_REUSE_TOLERANCE,
@@ -124,10 +124,10 @@ class PartialCalibration:
     EARLY_MAX_ITER = 50
     """Evaluations per solve of an early fit (a start that needs more crawls along a wrong valley)."""
     SPLIT_FACTOR = 5.0
-    """Uncalibrated, a series fit whose residual noise is above this many times the smallest a fit of this stream left
-    is not of one sensor: the series keeps its newer half (``_split_series``). A 20 uT hard-iron step on a ground robot
-    20-40 s into the stream, before its first calibration, left 10-20x and blocked calibration for 300 s (until the
-    old sensor's part left the series)."""
+    """Uncalibrated, a series fit whose residual noise is above this many times the smallest a fit of this stream's
+    turning readings left (``_turned``) is not of one sensor: the series keeps its newer half (``_split_series``). A
+    20 uT hard-iron step on a ground robot 20-40 s into the stream, before its first calibration, left 10-20x and
+    blocked calibration for 300 s (until the old sensor's part left the series)."""
     PARTIAL_GROWTH = 0.25
     """A new partial fit is due once the series received this share of its length in new samples ..."""
     PARTIAL_GROWTH_MAX = 1.0
@@ -200,9 +200,11 @@ class PartialCalibration:
 
     def _partial_noise(self, job: dict[str, Any]) -> None:
         """Remember the noise of a series fit's residuals and its solution for the next series fit: a solution
-        published, or refused only for its heading error or the azimuths seen (not for its guard rails)."""
+        published, or refused only for its heading error (not for its guard rails, nor for the azimuths seen: a fit of 10 s
+        at rest and 2 s of a ring was refused on them, and from its solution, as the only start, the ring's later fits
+        stayed in a wrong valley for minutes; ``tests/stream/test_rest_at_start.py``)."""
         res: PartialResult | None = job.get("result")
-        if res is not None and math.isfinite(res.sigma) and res.sigma > 0:
+        if res is not None and math.isfinite(res.sigma) and res.sigma > 0 and self._turned(job.get("series")):
             self._sigma_floor = min(self._sigma_floor, res.sigma)
         if res is not None and job.get("early") and math.isfinite(res.sigma) and res.sigma > 0:
             self._early_sigma = res.sigma
@@ -211,8 +213,7 @@ class PartialCalibration:
             self._gyro_frame = res.gyro_frame
             self._gyro_short = bool(job.get("gyro_short"))
         if res is not None and not job.get("early") and job.get("prior") is self._prior:
-            sound = res.calibration is not None and (not res.reason or res.over_limit is not None
-                                                     or res.azimuth < self.config.partial_min_azimuth)
+            sound = res.calibration is not None and (not res.reason or res.over_limit is not None)
             self._partial_start = res.calibration if sound else None
             if math.isfinite(res.sigma) and res.sigma > 0:
                 self._partial_sigma = res.sigma
@@ -247,6 +248,13 @@ class PartialCalibration:
             if self._az_watch is None:
                 break
             self._watch_point(px, py, pz)
+
+    @staticmethod
+    def _turned(series: Array | None) -> bool:
+        """The fit's points turned (``STATIC_SPREAD``): only such a fit's residual noise is a floor for ``SPLIT_FACTOR``;
+        an early fit of a still start sees the quantisation alone (a real IMU at rest, 0.13 counts, then 0.79 when it
+        turned: the series' older half, two of its three turns, dropped as of another sensor)."""
+        return series is not None and len(series) > 2 and relative_spread(np.asarray(series)) >= STATIC_SPREAD
 
     def _close_backoff(self, res: PartialResult | None) -> None:
         """After a close series fit refused on its heading figure (``res``; None after any other fit): the series
