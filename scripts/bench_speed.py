@@ -30,7 +30,8 @@ timing figures are medians over the repeats (the CPU is shared: compare ratios, 
 Seeds: ``--seeds tuning`` (1-3, looked at while changing the calibrator) or ``reported`` (21-25, run only to
 report; the default), or a comma list.
 Run: ``python scripts/bench_speed.py [--base /tmp/k_base] [--seeds reported] [--repeat 3] [--quick]``;
-``--profile CASE`` prints a cProfile of one case (seed 1) instead.
+``--profile CASE`` prints a cProfile of one case (seed 1) instead; ``--duration S`` makes every case S seconds long (the
+cost on a long stream, once the first calibrations are paid for).
 """
 
 from __future__ import annotations
@@ -39,6 +40,7 @@ import argparse
 import cProfile
 import gc
 import json
+import math
 import os
 import pstats
 import subprocess
@@ -77,8 +79,13 @@ STATUS_EVERY_S = 1.0
 the heading figures it shows when first read, so its time is part of the cost."""
 
 
+DURATION_S: float | None = None
+"""``--duration``: every case this long instead (a long stream: the cost once the first calibrations are paid for)."""
+
+
 def _record(gen: Any, name: str, seed: int) -> dict[str, Any]:
-    return gen.generate("mag", seed=seed, gyro_scale=0.03, **HARD, **CASES[name][0])
+    args = {**CASES[name][0], **({"duration_s": DURATION_S} if DURATION_S else {})}
+    return gen.generate("mag", seed=seed, gyro_scale=0.03, **HARD, **args)
 
 
 def _truth_at(rec: dict[str, Any], t: float) -> dict[str, Any]:
@@ -177,6 +184,7 @@ def _run_variant(pkg_root: str, cases: list[str], seeds: list[int]) -> list[dict
     cmd = [sys.executable, __file__, "--worker", "--cases", ",".join(cases), "--seeds", ",".join(map(str, seeds))]
     cmd += ["--wall"] if CLOCK is time.perf_counter else []
     cmd += ["--status-every", repr(STATUS_EVERY_S)] + (["--freeze"] if FREEZE else [])
+    cmd += ["--duration", repr(DURATION_S)] if DURATION_S else []
     out = subprocess.run(cmd, env=env, capture_output=True, text=True, check=False)
     if out.returncode:
         sys.exit(f"the run with {pkg_root} failed:\n{out.stderr[-3000:]}")
@@ -237,7 +245,7 @@ def profile(case: str, gyro: bool) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    global CLOCK, STATUS_EVERY_S, FREEZE
+    global CLOCK, STATUS_EVERY_S, FREEZE, DURATION_S
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--base", help="a checkout of another commit: its calibrator is the baseline")
     ap.add_argument("--seeds", default="reported", help="tuning, reported or a comma list")
@@ -251,11 +259,16 @@ def main(argv: list[str] | None = None) -> int:
                     help="stream seconds between status reads (0: none)")
     ap.add_argument("--freeze", action="store_true",
                     help="gc.freeze() before driving: the start-up's objects out of the collector's full passes")
+    ap.add_argument("--duration", type=float, metavar="S",
+                    help="every case S seconds long (above the jump's 60 s): the cost on a long stream")
     ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     if a.wall:
         CLOCK = time.perf_counter
     STATUS_EVERY_S, FREEZE = a.status_every, a.freeze
+    if a.duration is not None and not (math.isfinite(a.duration) and 60.0 < a.duration <= 86_400.0):
+        sys.exit(f"--duration must be a number of seconds in (60, 86400], got {a.duration!r}")
+    DURATION_S = a.duration
     seeds = list({"tuning": TUNING, "reported": REPORTED}.get(a.seeds) or map(int, a.seeds.split(",")))
     cases = a.cases.split(",") if a.cases else list(QUICK if a.quick else CASES)
     unknown = [c for c in cases + ([a.profile] if a.profile else []) if c not in CASES]

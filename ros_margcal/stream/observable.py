@@ -116,7 +116,7 @@ from ..model.heading import (
 )
 from ..model.mounting import Mounting
 from ..model.steps import Steps, drained
-from .config import PipelineConfig, apart, guard_rails
+from .config import PipelineConfig, apart, guard_rails, rms_relative
 
 __all__ = ["AZIMUTH_SECTORS", "DEFAULT_INCLINATION_DEG", "NEAR_LEVEL_NORM_REL_STD", "NEAR_LEVEL_TILT_DEG", "RING_AXIS_MAX_DEG",
            "RING_FLAT", "SIGMA_REUSE_TOLERANCE", "HeadingFigures", "PartialResult", "azimuth_coverage", "azimuth_sector",
@@ -406,10 +406,8 @@ def _tail_misfit(cal: Calibration, series: Array) -> float:
     pts = np.asarray(series, dtype=np.float64)
     if len(pts) < 4 * TAIL_POINTS:
         return 0.0
-    e = cal.norm_error(pts) / cal.norm
-    rest = float(np.sqrt(np.mean(e[:-TAIL_POINTS] ** 2)))
-    tail = float(np.sqrt(np.mean(e[-TAIL_POINTS:] ** 2)))
-    return tail / rest if rest > 0 and math.isfinite(tail) else 0.0
+    rest = rms_relative(cal, pts[:-TAIL_POINTS])
+    return rms_relative(cal, pts[-TAIL_POINTS:]) / rest if rest > 0 else 0.0
 
 
 def partial_fit_steps(series: Array, prior: Calibration | None, cfg: PipelineConfig, *, recent: Array,

@@ -607,10 +607,10 @@ class PartialCalibration:
         else the frames or the timing."""
         t = np.fromiter((r[0] for r in self._gyro_buf), dtype=np.float64, count=len(self._gyro_buf))
         step = float(np.median(np.diff(t))) if len(t) > 2 else 0.0
+        frames = "are the IMU and magnetometer in one frame, in step?"
         if step > self.GYRO_SPARSE_S:
-            return (f"samples {step:.2g} s apart: a rate integrated over that long misses a fast turn; else are the IMU "
-                    "and magnetometer in one frame, in step?")
-        return "are the IMU and magnetometer in one frame, in step?"
+            return f"samples {step:.2g} s apart: a rate integrated over that long misses a fast turn; else {frames}"
+        return frames
 
     def _gyro_applies(self) -> bool:
         """The gyro's share speaks of the calibration in use (a partial one) or of the fits refused while there
