@@ -161,14 +161,23 @@ def still_samples(rec: Any, cfg: PipelineConfig | None = None) -> np.ndarray:
         (cv, axis), learnt = probe.thresholds, probe.learnt
     gate = InactivityGate(window_s=window, cv_threshold=cv, axis_threshold=axis)
     out = []
+    quietest = math.inf, math.inf  # the window nearest to still: what a threshold must let through (message below)
     for i in range(len(rec.t)):
         avg = gate.push(rec.t[i], rec.raw[i], None if gyro is None else gyro[i])
         if avg is not None:
             out.append(avg)
+        elif not out and max(gate.window_stats) < max(quietest):
+            quietest = gate.window_stats
     if not out:
+        quiet = ""
+        if math.isfinite(max(quietest)):
+            need = float(f"{1.5 * max(quietest):.2g}")
+            quiet = f"; its quietest window: CV {quietest[0]:.2g}, axis spread {quietest[1]:.2g}"
+            hint = f"--set accel.gate_cv_threshold={need:g} if the sensor lay still that long (its rest noise)"
+        else:
+            hint = f"--set accel.gate_cv_threshold=... above the sensor's rest noise; no {window:g} s window filled"
         msg = (f"no still periods found in the recording (inactivity gate: {window:g} s window, CV {cv:.2g}, axis "
-               f"spread {axis:.2g}{'; ' + learnt if learnt else ''}); use --samples all, or --set "
-               "accel.gate_cv_threshold=... above the sensor's rest noise")
+               f"spread {axis:.2g}{'; ' + learnt if learnt else ''}{quiet}); use --samples all, or {hint}")
         raise RecordingError(msg)
     return np.asarray(out, dtype=np.float64)
 

@@ -454,8 +454,9 @@ def rescue(t: Array | None, points: Array, *, failure: str, model: str, norm: fl
         level = float(np.median(np.linalg.norm(pts, axis=1)))
         reason = (f"static recording: the {len(pts)} readings stay within {100 * spread:.2g} % of their mean "
                   f"(|v| = {level:.4g}{u}); they determine the field norm only, not the offset or the matrix")
-        return Rescue("static", reason, lines=[f"requested fit: {failure}", reason,
-                                               "no calibration fitted: turn the sensor through all directions"])
+        what = ("hold the sensor still in several poses, each axis pointing up and down" if sensor == "accel" else
+                "turn the sensor through all directions")
+        return Rescue("static", reason, lines=[f"requested fit: {failure}", reason, f"no calibration fitted: {what}"])
     found = _change(t, pts, failure, model=model, norm=norm, loss=loss, sensor=sensor, unit=unit, cfg=cfg,
                     noise=noise)
     if found is not None:

@@ -234,8 +234,8 @@ def _ran_away(exc: ConvergenceError, model: str, what: str) -> ConvergenceError:
         return exc
     shape = f"axes {ratio:.3g} times apart" if positive else "W not positive definite"
     return RunawayError(f"{what} did not converge: it ran away to no sensor's ellipsoid ({shape}), more iterations "
-                            "will not help; the readings cover too few directions, or lie on no one ellipsoid (iron or a "
-                            "magnet moving near the sensor)")
+                        "will not help; the readings cover too few directions, or lie on no one ellipsoid (a "
+                        "magnetometer's: iron or a magnet moving near it)")
 
 
 def _start(prep: Prepared, model: str, init: str | Calibration | None) -> Array:

@@ -50,7 +50,7 @@ from .units import ACCEL_UNITS, GRAVITY, LEARN_SAMPLES, MAG_UNITS, other_sensors
 
 __all__ = ["ACCEL_UNITS", "FIELD_SPECS", "GRAVITY", "GYRO_PAIR_S", "MAG_UNITS", "MOTION_NOT_NOISE", "RESIDUAL_NOISE_FACTOR",
            "STATIC_SPREAD", "FieldSpec", "PipelineConfig", "apart", "guard_rails", "plausibility", "raise_hint",
-           "relative_spread", "residual_limit", "rms_relative", "white_noise"]
+           "readings_for", "relative_spread", "relative_std", "residual_limit", "rms_relative", "white_noise"]
 
 EARTH_FIELD_RANGE_T = (20e-6, 70e-6)
 """Plausible geomagnetic field strength, tesla."""
@@ -493,14 +493,13 @@ def plausibility(cal: Calibration, cfg: PipelineConfig) -> str:
     if not cfg.norm_min <= radius <= cfg.norm_max:
         return (f"field norm {radius:.4g} {cfg.unit} outside the plausible range "
                 f"[{cfg.norm_min:.4g}, {cfg.norm_max:.4g}] {cfg.unit}")
-    std = cal.parameter_std()
-    if std:
-        gain = cal.norm / radius  # mean gain of W: scale of its elements
-        rel = {k: v / (radius if k.startswith("b_") else cal.norm if k == "norm" else gain) for k, v in std.items()}
+    rel = relative_std(cal)
+    if rel:
         worst = max(rel, key=lambda k: rel[k])
         if rel[worst] > cfg.max_parameter_std:
             return (f"parameter uncertainty too large: std of {worst} is {100 * rel[worst]:.3g} % > "
-                    f"{100 * cfg.max_parameter_std:.3g} % (the directions do not determine the model)")
+                    f"{100 * cfg.max_parameter_std:.3g} % (the directions do not determine the model: {worst} needs "
+                    f"{readings_for(worst, cfg.sensor)})")
     off = float(np.linalg.norm(cal.offset))
     limit = max(cfg.max_offset_ratio * radius, cfg.max_offset or 0.0)
     if off > limit:
@@ -509,6 +508,31 @@ def plausibility(cal: Calibration, cfg: PipelineConfig) -> str:
     if gains.min() < cfg.gain_min or gains.max() > cfg.gain_max:
         return f"axis gains {np.round(gains, 3).tolist()} outside [{cfg.gain_min:g}, {cfg.gain_max:g}]"
     return ""
+
+
+def relative_std(cal: Calibration) -> dict[str, float]:
+    """Each fitted parameter's one-sigma std on its own scale (empty without a covariance): offsets over the field's
+    radius in raw units, matrix elements over the mean gain, the norm over itself; what ``max_parameter_std`` bounds."""
+    std = cal.parameter_std()
+    if not std:
+        return {}
+    radius = cal.norm / abs(float(np.linalg.det(cal.matrix))) ** (1.0 / 3.0)
+    gain = cal.norm / radius  # mean gain of W: scale of its elements
+    return {k: v / (radius if k.startswith("b_") else cal.norm if k == "norm" else gain) for k, v in std.items()}
+
+
+def readings_for(name: str, sensor: str) -> str:
+    """The readings that determine parameter ``name`` (``b_x``, ``w_xy``, ``norm``), for advice: an offset or a gain
+    of one axis needs that axis pointing both ways; a cross term ``w_ij`` readings with axes i and j both large."""
+    if name == "norm":
+        return "the field's strength (reference_norm, or a position for the geomagnetic model)"
+    axes = name.split("_")[-1]
+    i, j = axes[0], axes[-1]
+    if sensor == "accel":
+        return f"poses with {i} pointing up and down" if i == j else \
+            f"a pose tilted halfway between the {i} and {j} axes, {i} and {j} both far from 0"
+    return f"readings with the field along +{i} and -{i}" if i == j else \
+        f"readings with the field between the {i} and {j} axes, both components large"
 
 
 def raise_hint(sensor: str, name: str, verb: str = "raise") -> str:

@@ -116,7 +116,7 @@ from ..model.heading import (
 )
 from ..model.mounting import Mounting
 from ..model.steps import Steps, drained
-from .config import PipelineConfig, apart, guard_rails, rms_relative
+from .config import PipelineConfig, apart, guard_rails, readings_for, relative_std, rms_relative
 
 __all__ = ["AZIMUTH_SECTORS", "DEFAULT_INCLINATION_DEG", "NEAR_LEVEL_NORM_REL_STD", "NEAR_LEVEL_TILT_DEG", "RING_AXIS_MAX_DEG",
            "RING_FLAT", "SIGMA_REUSE_TOLERANCE", "HeadingFigures", "PartialResult", "azimuth_coverage", "azimuth_sector",
@@ -335,6 +335,23 @@ def _inclination(cfg: PipelineConfig, cal: Calibration, raw: Array | None) -> fl
     return inclination_deg(cal, raw) if raw is not None else DEFAULT_INCLINATION_DEG
 
 
+def _poses_note(cal: Calibration, updated: tuple[str, ...], sensor: str, max_std: float) -> str:
+    """What an accelerometer's poses determine, by the guard rails' standard (``max_parameter_std``, not only what
+    the data took from the prior), and the readings the least determined of the others needs (``readings_for``):
+    ten real poses with no pose between x and y left ``w_xy`` 4 % uncertain while every parameter was "updated"."""
+    rel = relative_std(cal)
+    firm = [n for n in SYM_NAMES if n in updated and rel.get(n, math.inf) <= max_std]
+    loose = [n for n in SYM_NAMES if n not in firm]
+    note = f"partial fit (not published for the {sensor}): the poses seen determine {', '.join(firm) or 'no parameter'}; "
+    if not loose:
+        return note + "none need more poses"
+    worst = max(loose, key=lambda n: rel.get(n, math.inf))
+    sd = rel.get(worst, math.inf)
+    shown = f"std {100 * sd:.3g} % > {100 * max_std:.3g} %" if math.isfinite(sd) else "not determined"
+    verb = "needs" if len(loose) == 1 else "need"
+    return note + f"{', '.join(loose)} {verb} more poses ({worst}, {shown}: {readings_for(worst, sensor)})"
+
+
 def _figures(cal: Calibration, inc: float) -> HeadingFigures:
     """The figures of ``cal``, each computed when first read (``HeadingFigures``); the covariance checked now."""
     if cal.covariance is None or tuple(cal.parameter_names) != SYM_NAMES:
@@ -463,9 +480,7 @@ def partial_fit_steps(series: Array, prior: Calibration | None, cfg: PipelineCon
         cal = pf.calibration
         if sensor != "mag":
             return PartialResult(cal, pf.updated, pf.from_prior, kind, math.nan, math.inf, None,
-                                 f"partial fit (not published for the {sensor}): the poses seen determine "
-                                 f"{', '.join(pf.updated) or 'no parameter'}; "
-                                 f"{', '.join(pf.from_prior) or 'none'} need more poses", sigma=pf.residual_sigma)
+                                 _poses_note(cal, pf.updated, sensor, cfg.max_parameter_std), sigma=pf.residual_sigma)
         tilt = tilt_seen_deg(cal, series)
         # a ring or band fills 4 of the 12 regions, a tumble's first seconds 7 and more however far its tilt goes
         regions = regions_seen(cal, series)

@@ -175,7 +175,7 @@ class PartialCalibration:
         self._az_seen: set[int] = set()  # ... and the sectors the series visited under it
         self._gyro_buf: deque[tuple[float, ...]] = deque(maxlen=cfg.gyro_samples)  # t, x, y, z, rate (nan: none)
         self._gyro_share = math.nan  # the last series fit's share of the field's turning the gyro accounted for
-        self._gyro_short = False  # ... or: it had rates, but too few complete blocks of them
+        self._gyro_short = ""  # ... or: it had rates, but too few complete blocks of them (why: ``_short_why``)
         self._gyro_frame = ""  # ... or: the rates re-ordered or with an axis negated explained it far better
         self._mounting: Mounting | None = None  # the last series fit's mounting against the IMU (model.mounting)
         self._mount_applied: Array | None = None  # calibrate_into_imu_frame: the rotation q the readings are turned by ...
@@ -211,7 +211,7 @@ class PartialCalibration:
         if res is not None and not job.get("early") and res.calibration is not None:
             self._gyro_share = res.gyro_explained
             self._gyro_frame = res.gyro_frame
-            self._gyro_short = bool(job.get("gyro_short"))
+            self._gyro_short = job.get("gyro_short") or ""
         if res is not None and not job.get("early") and job.get("prior") is self._prior:
             sound = res.calibration is not None and (not res.reason or res.over_limit is not None)
             self._partial_start = res.calibration if sound else None
@@ -333,6 +333,19 @@ class PartialCalibration:
         blocks = gyro_blocks(arr[:, 0], arr[:, 1:4], arr[:, 4:7], k)
         return blocks if len(blocks) >= self.GYRO_MIN_BLOCKS else None
 
+    def _short_why(self, rows: list[tuple[float, ...]], cfg: PipelineConfig) -> str:
+        """Why ``rows`` made too few gyro blocks: samples without a rate (the Imu messages not paired), else a span too
+        short, else steps in the stamps that broke the blocks (a CSV with a rate on every row was told to check its
+        Imu messages' frame_id)."""
+        missing = sum(1 for r in rows if r[4] != r[4])  # NaN: no rate
+        if missing:
+            return (f"{missing} of the last {len(rows)} samples without one: an Imu message within 20 ms of each "
+                    "MagneticField one, same frame_id?")
+        span = rows[-1][0] - rows[0][0]
+        if span < self.GYRO_MIN_BLOCKS * cfg.gyro_block_s:
+            return f"rates over {span:.1f} s so far"
+        return "the stamps step unevenly: a block with a step far above the median is left out"
+
     def _series_points(self) -> tuple[Array, Array]:
         """The series: block means (N, 3) and their spreads (N,)."""
         arr = np.array(self._series, dtype=np.float64).reshape(-1, 4)
@@ -406,7 +419,7 @@ class PartialCalibration:
         gyro = self._gyro_blocks(job["gyro_rows"], job["config"]) if job["gyro_rows"] else None
         if gyro is not None:
             yield
-        job["gyro_short"] = bool(job["gyro_rows"]) and gyro is None
+        job["gyro_short"] = self._short_why(job["gyro_rows"], job["config"]) if job["gyro_rows"] and gyro is None else ""
         q = job.get("mount_applied")  # calibrate_into_imu_frame: the series and rows are turned by q, so is the rest
         prior, current, recent = job["prior"], job["current"], job["recent"]
         if q is not None:
@@ -591,7 +604,7 @@ class PartialCalibration:
                          f"{100 * MIN_EXPLAINED:.0f} % ({self._gyro_doubt()})")
         elif self._gyro_short and self._gyro_applies():
             out += (f"; gyro not used: fewer than {self.GYRO_MIN_BLOCKS} blocks of {self.config.gyro_block_s:g} s with a "
-                    "rate on every sample (an Imu message within 20 ms of each MagneticField one, same frame_id?)")
+                    f"rate on every sample ({self._gyro_short})")
         if mount is not None:
             note = mount.message(into_imu=self._mount_applied is not None)
             out += f"; {note}" if note else ""

@@ -166,7 +166,19 @@ def test_too_few_rates_are_said_not_used(ring: dict[str, Any], alone: tuple[Sens
         events += [e for e in cal.push(t, v, g) if e.kind is EventKind.CALIBRATED]
     st = cal.status()
     assert st.gyro_explained is None and "gyro not used: fewer than 20 blocks" in st.message, st.message
+    assert "samples without one: an Imu message within 20 ms" in st.message, st.message
     assert [e.t for e in events] == [e.t for e in alone[1]]
+
+
+def test_a_short_recording_with_a_rate_on_every_sample_is_not_asked_about_its_imu_messages(ring: dict[str, Any]) -> None:
+    """17 s of a ring with a rate on every row (a real Roomba's 27 s CSV was asked to pair its Imu messages): the
+    status says how long the rates go, not that the messages are unpaired."""
+    short = {k: ring[k][: 17 * 50] for k in ("t", "xyz", "gyro")}
+    cal = SensorCalibrator("mag")
+    _feed(cal, short, short["gyro"])
+    st = cal.status()
+    assert "gyro not used: fewer than 20 blocks of 1 s with a rate on every sample (rates over" in st.message, st.message
+    assert "Imu message" not in st.message, st.message
 
 
 def test_a_sparse_log_that_the_gyro_does_not_explain_says_how_far_apart_its_samples_are() -> None:

@@ -9,6 +9,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation, Slerp
 
+from ros_margcal.cli import main
+from ros_margcal.cli.calibrate_guard import EXIT_REFUSED
 from ros_margcal.coverage.gate import InactivityGate
 from ros_margcal.model.calibration import Calibration
 from ros_margcal.recordings.read import read_recording
@@ -123,6 +125,64 @@ def test_the_uncertainty_message_shows_enough_digits() -> None:
                       covariance=np.array([[(0.0106 * 50.0) ** 2]]))  # b_x std 1.06 % of the radius
     why = plausibility(cal, cfg)
     assert "std of b_x is 1.06 % > 1.04 %" in why, why
+
+
+def _held(rng: np.random.Generator, ups: list[tuple[float, float, float]], rest_s: float = 3.5) -> tuple[np.ndarray, np.ndarray]:
+    """Times and raw readings (g; the MEMS part of ``_mems``, 4e-3 g noise) of a body held still with each of ``ups``
+    (body axes, not normalised) pointing up in turn for ``rest_s``, a 1 s swing between."""
+    gains = np.diag([1.03, 0.97, 1.02]) + np.array([[0.0, 0.01, -0.005], [0.01, 0.0, 0.008], [-0.005, 0.008, 0.0]])
+    f = []
+    for k, up in enumerate(ups):
+        u = np.asarray(up, dtype=np.float64) / np.linalg.norm(up)
+        f.append(np.tile(u, (int(rest_s * RATE), 1)))
+        if k + 1 < len(ups):
+            f.append(rng.normal(scale=0.4, size=(int(RATE), 3)) + u)  # the hand turning it: no rest
+    force = np.concatenate(f)
+    raw = force @ gains.T + np.array([0.05, -0.03, 0.04]) + rng.normal(scale=4e-3, size=force.shape)
+    return np.arange(len(raw)) / RATE, raw
+
+
+def test_poses_that_leave_a_cross_term_loose_say_which_pose_is_missing(tmp_path: Path,
+                                                                      capsys: pytest.CaptureFixture[str]) -> None:
+    """Ten poses as a real MPU-6050 procedure held them (each axis up and down, four tilted between y or x and z, none
+    between x and y): stream and batch both say that w_xy is loose and that a pose between x and y is missing (the
+    stream said "none need more poses": each parameter's std had halved from the prior's, w_xy's to 3-4 %)."""
+    ups = [(0, 0, 1), (0, 0, -1), (-1, 0, 0), (1, 0, 0), (0, -1, 0), (0, 1, 0), (0, 1, 1), (0, -1, 1), (-1, 0, 1),
+           (1, 0, 1)]
+    t, raw = _held(np.random.default_rng(62), ups, rest_s=5.0)
+    cal = SensorCalibrator("accel", PipelineConfig.for_sensor("accel", "g"))
+    _run(cal, t, raw)
+    msg = cal.status().message
+    assert cal.calibration is None, msg
+    determined, loose = msg.split("the poses seen determine ")[1].split("; ")[:2]
+    assert "w_xy" not in determined and loose.startswith("w_xy needs more poses"), msg
+    assert "between the x and y axes" in loose, msg
+    csv = tmp_path / "poses_acc.csv"
+    np.savetxt(csv, np.column_stack([t, raw]), delimiter=",", header="t,x,y,z", comments="")
+    code = main(["calibrate", str(csv), "--sensor", "accel", "--unit", "g", "-o", str(tmp_path / "out.yaml")])
+    err = capsys.readouterr().err
+    assert code == EXIT_REFUSED and not (tmp_path / "out.yaml").exists(), err
+    assert "std of w_xy" in err and "between the x and y axes" in err, err
+
+
+def test_a_still_sensor_noisier_than_the_gate_learns_is_told_the_threshold_that_finds_it(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """One pose, 60 s at 10 Hz, 1.2 % noise per axis quantised to 0.01 g (a real MPU-6050 log printed so): no still
+    window, and the error quotes the quietest window and a threshold above it, which then finds the rest."""
+    rng = np.random.default_rng(63)
+    t = np.arange(600) / 10.0
+    raw = np.round(np.array([1.04, 0.01, 0.09]) + rng.normal(scale=0.012, size=(600, 3)), 2)
+    csv = tmp_path / "still_acc.csv"
+    np.savetxt(csv, np.column_stack([t, raw]), delimiter=",", header="t,x,y,z", comments="")
+    code = main(["calibrate", str(csv), "--sensor", "accel", "--unit", "g", "-o", str(tmp_path / "out.yaml")])
+    err = capsys.readouterr().err
+    assert code != 0 and "no still periods found" in err and "its quietest window: CV" in err, err
+    value = err.split("--set accel.gate_cv_threshold=")[1].split()[0]
+    assert 0.012 < float(value) < 0.05, err
+    main(["calibrate", str(csv), "--sensor", "accel", "--unit", "g", "-o", str(tmp_path / "out.yaml"), "--set",
+          f"accel.gate_cv_threshold={value}"])
+    cap = capsys.readouterr()
+    assert "static recording" in cap.out + cap.err and "each axis pointing up and down" in cap.out + cap.err
 
 
 def test_zero_rows_are_called_zero_rows_and_counted_once() -> None:
