@@ -213,7 +213,8 @@ def main(argv: list[str] | None = None) -> int:
         soft_iron_survey(args.data)
         return 0
     known = units(args.data)
-    rows = [study(args.data / name, known[name]) for name in sorted(known) if (args.data / name).exists()]
+    rows = [study(args.data / name, known[name]) for name in sorted(known)
+            if (args.data / name).exists() and name.endswith(("_mag.csv", "_acc.csv"))]  # (a folder's other files: no sensor)
     print("| recording | unit | stream | first calibration | why (final status) | batch fit | offset diff | "
           "heading p95 level / 30° |")
     print("| --- | --- | --- | --- | --- | --- | --- | --- |")

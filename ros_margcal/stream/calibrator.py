@@ -143,6 +143,8 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         self._recent_t: deque[float] = deque(maxlen=cfg.recent_samples)
         self._recent_v: deque[tuple[float, float, float]] = deque(maxlen=cfg.recent_samples)
         self._recent_r: deque[float] = deque(maxlen=cfg.recent_samples)
+        self._early_t: deque[float] = deque(maxlen=2 * cfg.recent_samples)  # an early fit's window (partial.py)
+        self._early_v: deque[tuple[float, float, float]] = deque(maxlen=2 * cfg.recent_samples)
         self._intake = Intake(cfg, use_gyro=self._gate is not None or cfg.gyro_aided)
         self._spikes = SpikeFilter()
         self._rails_found = 0  # the intake's rails seen (_rail_found)
@@ -320,6 +322,7 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         self._spikes.reset()
         shift = step - self.config.min_period_s
         self._recent_t = deque((s + shift for s in self._recent_t), maxlen=self._recent_t.maxlen)
+        self._early_t = deque((s + shift for s in self._early_t), maxlen=self._early_t.maxlen)
         if self._suspect_since is not None:
             self._suspect_since += shift
         if self._change_onset is not None:
@@ -346,10 +349,13 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         rails = self._intake.rails
         self._rails_found = rails.found
         gone = self._buffer.discard(rails.on_rail)
-        keep = [not rails.on_rail(*v) for v in self._recent_v]
-        if not all(keep):
-            gone = max(gone, keep.count(False))
-            for name in ("_recent_t", "_recent_v", "_recent_r"):
+        for names in (("_recent_t", "_recent_v", "_recent_r"), ("_early_t", "_early_v")):
+            keep = [not rails.on_rail(*v) for v in getattr(self, names[1])]
+            if all(keep):
+                continue
+            if names[0] == "_recent_t":
+                gone = max(gone, keep.count(False))
+            for name in names:
                 old = getattr(self, name)
                 if len(old) == len(keep):  # they are appended together (never raise in push for a deque out of step)
                     setattr(self, name, deque((a for a, k in zip(old, keep, strict=True) if k), maxlen=old.maxlen))
@@ -367,7 +373,7 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         if self._cal is not None:
             return
         self._buffer.clear()
-        for d in (self._recent_t, self._recent_v, self._recent_r):
+        for d in (self._recent_t, self._recent_v, self._recent_r, self._early_t, self._early_v):
             d.clear()
         self._partial_reset()
         self._spikes.reset()
@@ -385,6 +391,8 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         r = self._rel_error(x, y, z) if self._cal is not None else 0.0
         self._recent_t.append(t)
         self._recent_v.append((x, y, z))
+        self._early_t.append(t)
+        self._early_v.append((x, y, z))
         self._recent_r.append(r)
         self._series_push(t, x, y, z)
         if self._cal is not None and not self._changed:

@@ -121,6 +121,10 @@ class PartialCalibration:
     CHORD_GAP, CHORD_SPREAD = 2.5, 10.0
     """An early fit leaves out a block of the recent samples across a stamp step above ``CHORD_GAP`` times the median
     step whose spread is above ``CHORD_SPREAD`` times the median block's (``_early_blocks``)."""
+    EARLY_SPAN_S = 10.0
+    """An early fit takes the recent samples (``recent_samples``), or the last this many seconds of samples when they
+    are more, up to twice as many (``_early_window``): at 100 Hz the 500 recent samples hold 5 s of a tumble, and early
+    fits of 5 s stayed in 5-6 of the 12 regions (first good 9-10 s on two tuning seeds, 6-6.5 s at 50 Hz)."""
     EARLY_MAX_ITER = 50
     """Evaluations per solve of an early fit (a start that needs more crawls along a wrong valley)."""
     SPLIT_FACTOR = 5.0
@@ -147,6 +151,8 @@ class PartialCalibration:
     _changed: bool
     _recent_v: Any
     _recent_t: Any
+    _early_v: Any
+    _early_t: Any
     _buffer: Any
 
     def _partial_reset(self) -> None:
@@ -377,6 +383,15 @@ class PartialCalibration:
             return False  # the series fits take over (a ring's early fit: its ±30° figure stays the prior's)
         return not (p.figures is not None and p.figures.tilt30_deg <= self.config.early_heading_p95_deg)
 
+    def _early_window(self) -> tuple[Array, list[tuple[float, float, float]]]:
+        """The samples an early fit takes (``EARLY_SPAN_S``): their stamps and readings."""
+        t = np.fromiter(self._early_t, dtype=np.float64, count=len(self._early_t))
+        n = len(self._recent_v)
+        if len(t) > n and len(t) == len(self._early_v):
+            n = max(n, len(t) - int(np.searchsorted(t, t[-1] - self.EARLY_SPAN_S + 1e-3)))  # (1 ms: 500 at 50 Hz)
+        n = min(n, len(t), len(self._early_v))
+        return t[len(t) - n:], list(itertools.islice(self._early_v, len(self._early_v) - n, None))
+
     def _early_blocks(self) -> tuple[Array, Array]:
         """The recent samples as block means of ``EARLY_POINTS`` at most, without a chord: a block across a gap in the
         stamps (samples dropped between: saturated, out of range) whose spread is above ``CHORD_SPREAD`` times the
@@ -384,11 +399,11 @@ class PartialCalibration:
         quarter of a tumble's samples dropped as saturated gave an early fit 1.9 deg off at 30 deg for its 1.0 deg
         figure). Both conditions: a still sensor's blocks spread as much as all its samples, and a real recording's
         stamps may come in bursts."""
-        k = -(-len(self._recent_v) // self.EARLY_POINTS)
-        series, spread = block_means(self._recent_v, k)
-        if k < 2 or len(spread) < 3 or len(self._recent_t) != len(self._recent_v):
+        t, v = self._early_window()
+        k = -(-len(v) // self.EARLY_POINTS)
+        series, spread = block_means(v, k)
+        if k < 2 or len(spread) < 3 or len(t) != len(v):
             return series, spread
-        t = np.asarray(self._recent_t, dtype=np.float64)
         dt = np.diff(t[len(t) % k:].reshape(-1, k), axis=1)
         chord = (dt.max(axis=1) > self.CHORD_GAP * float(np.median(np.diff(t)))) & (
             spread > self.CHORD_SPREAD * float(np.median(spread)))
