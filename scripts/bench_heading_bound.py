@@ -10,7 +10,8 @@ bound that covers by being huge is useless.
 
 Cases: a tumble (60 s; also at 100 Hz, where an early fit's samples span a different time), a ground robot at 5
 and 20 deg tilt (300 s), a hemisphere and a +-20 deg band (120 s), and the generator's near-level car ring (tilt
-within +-1.5 deg, sensor mounted level: ``cases``); at 50 Hz but where said, 30 uT hard iron, symmetric soft iron. The last column is the time to each recording's first calibration.
+within +-1.5 deg, sensor mounted level: ``cases``); at 50 Hz but where said, 30 uT hard iron, symmetric soft iron.
+The last column is the time to each recording's first calibration.
 Seeds 900-904 were used to choose the bound's formula (``TUNING``); seeds 950-959 (``HELD_OUT``) were run
 only to report it. ``--real``: the real magnetometer recordings of ``../shared/data/real`` (skipped when absent),
 where the reference is the batch fit ``margcal calibrate`` makes (``study_real_recordings.batch``), compared
@@ -249,8 +250,8 @@ def main(argv: list[str] | None = None) -> int:
         unknown = [c for c in names if c not in cases(gen)]
         if unknown:
             p.error(f"unknown cases {unknown}: choose from {', '.join(cases(gen))}")
-    print("independent generator, 50 Hz but where named, 30 uT hard iron: coverage of the predicted heading p95 (95 % bound) over every"
-          " published calibration")
+    print("independent generator, 50 Hz but where named, 30 uT hard iron: coverage of the predicted heading p95 (95 % bound) "
+          "over every published calibration")
     print(f"  {'group':9s} {'case':14s} {'seeds':>5s} {'cals':>4s} {HEADER} | first calibration: median, worst (s)")
     groups = {"tuning": TUNING, "held-out": HELD_OUT}
     for group, seeds in groups.items():
