@@ -20,6 +20,13 @@ Usage::
 
 ``--data DIR``: another folder of ``t,x,y,z`` CSVs (``*_mag.csv``, ``*_acc.csv``), its raw units in
 ``DIR/units.yaml`` (``units``).
+
+A magnetometer recording with a reference attitude beside it (``NAME_attitude.csv``: ``t,yaw_deg,pitch_deg,roll_deg``
+of another AHRS, e.g. a VN-100's own filter, body x forward, y right, z down) gets a second table: every calibration
+the stream publishes (with the recording's rates, as ``margcal replay`` feeds them), its heading tilt-compensated with
+the reference's roll and pitch, against the reference's yaw (``against_reference_yaw``: p95 of the difference after
+its median, the declination and the mounting's yaw, is taken off), beside the status's level and 30° bounds; and the
+same for the raw readings and the batch fit.
 """
 
 from __future__ import annotations
@@ -33,6 +40,7 @@ import numpy as np
 import yaml
 
 from ros_margcal.cli.calibrate import still_samples
+from ros_margcal.cli.calibrate_guard import refusal
 from ros_margcal.cli.fit_rescue import check, config_for, rescue, residual_note, rests_apart
 from ros_margcal.model.calibration import Calibration
 from ros_margcal.model.errors import ConvergenceError, DegenerateDataError, RecordingError
@@ -181,6 +189,51 @@ def reason(path: Path, sensor: str, cal: SensorCalibrator, timeline: list[dict[s
     return f"final status: {cal.status().message}"
 
 
+def reference_heading_p95(h: np.ndarray, att: np.ndarray) -> float:
+    """p95 (deg) of the heading of the field ``h`` (N, 3), tilt-compensated with the reference's roll and pitch
+    (``att``: N rows of yaw, pitch, roll in degrees; NED body axes), against the reference's yaw, its median taken off;
+    the heading's sense taken from the data (a reference of another handedness turns the other way)."""
+    yaw, pitch, roll = np.radians(att[:, 0]), np.radians(att[:, 1]), np.radians(att[:, 2])
+    cp, sp, cr, sr = np.cos(pitch), np.sin(pitch), np.cos(roll), np.sin(roll)
+    hx = h[:, 0] * cp + h[:, 1] * sr * sp + h[:, 2] * cr * sp
+    hy = h[:, 1] * cr - h[:, 2] * sr
+    psi, ref = np.unwrap(np.arctan2(-hy, hx)), np.unwrap(yaw)
+    if len(psi) > 2 and np.dot(np.diff(psi), np.diff(ref)) < 0:
+        psi = -psi
+    d = np.degrees(psi - ref)
+    d = (d - np.median(d) + 180.0) % 360.0 - 180.0
+    return float(np.percentile(np.abs(d), 95))
+
+
+def against_reference_yaw(path: Path, unit: str) -> list[str]:
+    """Lines of the reference-yaw table for a magnetometer recording with ``NAME_attitude.csv`` beside it ([] without)."""
+    ref_path = path.with_name(path.name.replace("_mag.csv", "_attitude.csv"))
+    if not path.name.endswith("_mag.csv") or not ref_path.exists():
+        return []
+    a = np.genfromtxt(ref_path, delimiter=",", names=True)
+    rec = read_recording(path, sensor="mag")
+    t, raw = np.asarray(rec.t, dtype=np.float64), np.asarray(rec.raw, dtype=np.float64)
+    att = np.column_stack([np.interp(t, a["t"], np.degrees(np.unwrap(np.radians(a[k]))))
+                           for k in ("yaw_deg", "pitch_deg", "roll_deg")])
+    name = path.name
+    lines = [f"| {name} | uncalibrated | — | {reference_heading_p95(raw, att):.2f}° | — | — |"]
+    cal = SensorCalibrator("mag", config_for("mag", unit))
+    gyro = None if rec.gyro is None else np.asarray(rec.gyro, dtype=np.float64)
+    for k, tk in enumerate(t.tolist()):
+        for e in cal.push(tk, raw[k], None if gyro is None else gyro[k]):
+            if e.calibration is None or e.kind.value != "calibrated":
+                continue
+            st = cal.status(tk)
+            lines.append(f"| {name} | stream | {tk - t[0]:.1f} s | {reference_heading_p95(e.calibration.apply(raw), att):.2f}° "
+                         f"| {_f(st.heading_p95_level_deg, '{:.2f}°')} | {_f(st.heading_p95_tilt30_deg, '{:.2f}°')} |")
+    ref, note = batch(path, "mag", unit)
+    if ref is not None:
+        why = refusal(ref, config_for("mag", unit), white_noise(raw))
+        note += "; margcal calibrate refuses it: " + why.split(":")[0] if why else ""
+        lines.append(f"| {name} | batch fit ({note}) | — | {reference_heading_p95(ref.apply(raw), att):.2f}° | — | — |")
+    return lines
+
+
 def soft_iron_survey(data: Path) -> None:
     """Print each full-sphere magnetometer's matrix deviation from isotropic (module docstring)."""
     print(f"{'recording':42s} {'w_xx':>6s} {'w_yy':>6s} {'w_zz':>6s} {'w_xy':>6s} {'w_xz':>6s} {'w_yz':>6s}  "
@@ -225,6 +278,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f"| {r['file']} | {r['unit']} | {r['state']}{' (' + str(r['changes']) + ' change)' if r['changes'] else ''}"
               f" | {_f(r['first'], '{:.0f} s')} | {why} | {r['batch']} | {_f(r['offset'], '{:.2f} %')} | "
               f"{_f(r['level'], '{:.2f}°')} / {_f(r['tilt30'], '{:.2f}°')} |")
+    yaw_rows = [line for name in sorted(known) if (args.data / name).exists()
+                for line in against_reference_yaw(args.data / name, known[name])]
+    if yaw_rows:
+        print("\n| recording | calibration | published at | heading p95 vs the reference yaw | level bound | 30° bound |")
+        print("| --- | --- | --- | --- | --- | --- |")
+        print("\n".join(yaw_rows))
     return 0
 
 
