@@ -109,14 +109,17 @@ def baseline(cal: SensorCalibrator, published_cal: Calibration) -> tuple[float, 
 
 
 def published(t: np.ndarray, xyz: np.ndarray, cfg: PipelineConfig,
-              measure: Callable[[Calibration, float], tuple[float, float]]) -> list[dict[str, float]]:
+              measure: Callable[[Calibration, float], tuple[float, float]],
+              gyro: np.ndarray | None = None) -> list[dict[str, float]]:
     """One row per published calibration: the status's bounds right after it, the old ones (``baseline``) and
     ``measure``'s level and 30 deg figures of it (the generator's truth, or the batch fit), given the field
-    inclination the status's figures assume (``heading_inclination_deg``)."""
+    inclination the status's figures assume (``heading_inclination_deg``); ``gyro``: a rate per sample (rad/s), as
+    ``margcal replay`` feeds a recording's."""
     cal = SensorCalibrator("mag", cfg)
     rows = []
-    for tk, v in zip(t.tolist(), xyz, strict=True):
-        for e in cal.push(tk, v, None):
+    rates = [None] * len(t) if gyro is None else [None if not np.all(np.isfinite(g)) else g for g in gyro]
+    for tk, v, g in zip(t.tolist(), xyz, rates, strict=True):
+        for e in cal.push(tk, v, g):
             if e.kind is not EventKind.CALIBRATED or e.calibration is None:
                 continue
             st = cal.status(tk)
@@ -224,7 +227,8 @@ def real(data: Path) -> None:
                     return math.nan, math.nan
                 return heading_p95_against(c, parts[k], 0.0, inc), heading_p95_against(c, parts[k], 30.0, inc)
 
-            rows = published(np.asarray(rec.t), np.asarray(rec.raw), PipelineConfig.for_sensor("mag", unit), measure)
+            rows = published(np.asarray(rec.t), np.asarray(rec.raw), PipelineConfig.for_sensor("mag", unit), measure,
+                             None if rec.gyro is None else np.asarray(rec.gyro, dtype=np.float64))
         every += rows
         print(f"  {name:48s} {len(rows):4d} {_no_ref(rows):6d} {_cells(rows)}; {note}", flush=True)
     print(f"  {'all':48s} {len(every):4d} {_no_ref(every):6d} {_cells(every)}")
