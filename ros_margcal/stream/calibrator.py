@@ -462,8 +462,9 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         spread = relative_spread(pts)
         if spread >= STATIC_SPREAD:
             return ""
-        return (f"; the sensor has not turned: the last {len(pts)} samples stay within {pct(spread)} of their mean "
-                "(static: they fix the field norm only); turn it through all directions")
+        what = ("one pose: it fixes gravity's norm only); hold it still in other poses, each axis up and down"
+                if self.sensor == "accel" else "static: they fix the field norm only); turn it through all directions")
+        return f"; the sensor has not turned: the last {len(pts)} samples stay within {pct(spread)} of their mean ({what}"
 
     def _gate_figures(self) -> str:
         """The gate's last window against its thresholds, `` (last window CV .. vs .., axis spread .. vs ..; learnt)``."""

@@ -95,3 +95,5 @@ def test_a_level_ground_robot_accelerometer_says_what_it_could_update() -> None:
     assert "the poses seen determine" in msg and "need more poses" in msg
     determined, missing = msg.split("the poses seen determine ")[1].split("; ")[:2]
     assert "w_zz" in determined and "b_x" in missing and "b_y" in missing
+    assert "turn it through all directions" not in msg  # a magnetometer's advice
+    assert "hold it still in other poses" in msg and "pointing up and down" in msg
