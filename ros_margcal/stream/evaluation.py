@@ -293,8 +293,9 @@ class Evaluation(PartialCalibration):
         thr = self.threshold
         if not pred <= thr:
             shown = pct(pred) if pred <= 1.0 else "over 100 % (not determined)"  # the validator extrapolates
-            self._last_reason = (f"{pct(self.coverage)} coverage, predicted error {shown} > {pct(thr)}: "
-                                 "turn the sensor through the directions not yet covered")
+            todo = ("hold the sensor still in poses not yet covered" if self.sensor == "accel" else
+                    "turn the sensor through the directions not yet covered")
+            self._last_reason = f"{pct(self.coverage)} coverage, predicted error {shown} > {pct(thr)}: {todo}"
             events = [Event(EventKind.REJECTED, t, self.sensor, f"not fitted: {self._last_reason}")] if force else []
             if self._cal is None or self._changed:
                 events += self._set_state(State.COLLECTING, t)
