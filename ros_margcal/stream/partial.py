@@ -55,9 +55,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..model.calibration import Calibration
+from ..model.fitting import RUNAWAY_AXIS_RATIO
 from ..model.fitting_geometric import block_means
 from ..model.fitting_gyro import MIN_EXPLAINED, GyroBlocks, gyro_blocks
-from ..model.fitting_level import LEVEL_TILT_STD_DEG
+from ..model.fitting_level import LEVEL_TILT_STD_DEG, circle_centre
 from ..model.heading import format_bound
 from ..model.mounting import Mounting, find_mounting_steps, into_imu_frame, turned
 from ..model.steps import Steps
@@ -118,6 +119,13 @@ class PartialCalibration:
     ground robot's yaw at 2 Hz is still 99 % explained)."""
     GYRO_MIN_BLOCKS = 20
     """Fewest gyro blocks (complete, with a rate on every sample) for the gyro to join a series fit."""
+    WATCH_RAW_POINTS = 10
+    """Under an azimuth watch whose refused fit is no sensor's ellipsoid (``W``, or its horizontal block, with axes more
+    than ``RUNAWAY_AXIS_RATIO`` apart), the new series points' raw x, y are also checked every this many points
+    (``_raw_turned``): a real car's 50 s of straight driving gave a fit with gains 2.1 and 0.16, under which its circles
+    later covered 18 of 36 sectors while the raw readings covered 36. A sane refused fit is watched as before (a real
+    QMC5883L turned by hand: its raw x, y circle while its calibrated azimuths do not, and the fits it would add moved
+    its calibrations)."""
     CHORD_GAP, CHORD_SPREAD = 2.5, 10.0
     """An early fit leaves out a block of the recent samples across a stamp step above ``CHORD_GAP`` times the median
     step whose spread is above ``CHORD_SPREAD`` times the median block's (``_early_blocks``)."""
@@ -179,6 +187,7 @@ class PartialCalibration:
         self._partial_start: Calibration | None = None  # ... and its solution, the next one's start
         self._az_watch: tuple[Any, ...] | None = None  # after an azimuth refusal: its W rows x, y, offset, ring centre
         self._az_seen: set[int] = set()  # ... and the sectors the series visited under it
+        self._az_raw: list[tuple[float, float]] | None = None  # ... and, under no sensor's ellipsoid, the new points' raw x, y
         self._gyro_buf: deque[tuple[float, ...]] = deque(maxlen=cfg.gyro_samples)  # t, x, y, z, rate (nan: none)
         self._gyro_share = math.nan  # the last series fit's share of the field's turning the gyro accounted for
         self._gyro_short = ""  # ... or: it had rates, but too few complete blocks of them (why: ``_short_why``)
@@ -280,6 +289,8 @@ class PartialCalibration:
         centre = ring_centre(cal.apply(series))  # the azimuths about the ring's centre, as the fit judged them
         self._az_seen = set(azimuth_sectors(cal, series, centre).tolist())
         self._az_watch = (*w[0].tolist(), *w[1].tolist(), *b.tolist(), *centre)
+        axes = [np.linalg.svd(m, compute_uv=False) for m in (w, w[:2, :2])]
+        self._az_raw = [] if any(not sv[-1] * RUNAWAY_AXIS_RATIO >= sv[0] for sv in axes) else None
 
     def _watch_point(self, x: float, y: float, z: float) -> None:
         """One new series point under the azimuth watch: once the sectors seen reach ``partial_min_azimuth``,
@@ -288,7 +299,12 @@ class PartialCalibration:
         a, b, c, d, e, f, bx, by, bz, cx, cy = self._az_watch
         dx, dy, dz = x - bx, y - by, z - bz
         self._az_seen.add(azimuth_sector(a * dx + b * dy + c * dz - cx, d * dx + e * dy + f * dz - cy))
-        if len(self._az_seen) >= self.config.partial_min_azimuth * AZIMUTH_SECTORS:
+        need = self.config.partial_min_azimuth * AZIMUTH_SECTORS
+        raw = self._az_raw
+        if raw is not None:
+            raw.append((x, y))
+        if len(self._az_seen) >= need or (raw is not None and len(raw) % self.WATCH_RAW_POINTS == 0
+                                          and _raw_turned(raw, need)):
             self._az_watch = None
             self._partial_growth = 0.0
 
@@ -691,3 +707,23 @@ def _mount_fields(m: Mounting | None) -> dict[str, Any]:
         return {"mounting": "" if m is None else ("mirrored: " + m.mirror if m.mirror else "not determined")}
     return {"mounting": m.name, "mounting_misalignment_deg": m.misalignment_deg,
             "mounting_misalignment_sd_deg": m.misalignment_sd_deg}
+
+
+RAW_RING_SPREAD = 0.3
+"""``_raw_turned``: the points' distances from their circle's centre within this share of their median (a ring traced,
+not a blob: a still sensor's noise about a centre near it spreads by about half its median distance)."""
+
+
+def _raw_turned(xy: list[tuple[float, float]], need: float) -> bool:
+    """The raw horizontal readings ``xy`` went round a circle (``circle_centre``) through ``need`` of the
+    ``AZIMUTH_SECTORS`` azimuth sectors, tracing it (``RAW_RING_SPREAD``): a watched ring's retry is due whatever
+    the refused fit's calibration made of it."""
+    pts = np.asarray(xy, dtype=np.float64)
+    cx, cy = circle_centre(pts)
+    dx, dy = pts[:, 0] - cx, pts[:, 1] - cy
+    r = np.hypot(dx, dy)
+    med = float(np.median(r))
+    if not (med > 0 and float(np.median(np.abs(r - med))) <= RAW_RING_SPREAD * med):
+        return False
+    sectors = np.floor((np.arctan2(dy, dx) + math.pi) / (2.0 * math.pi) * AZIMUTH_SECTORS).astype(int) % AZIMUTH_SECTORS
+    return len(np.unique(sectors)) >= need

@@ -73,3 +73,29 @@ def test_a_quantised_rest_sets_no_noise_floor_for_the_split(monkeypatch: pytest.
             first = tt
     assert splits == []
     assert first is not None and first < 100.0, first
+
+
+def test_a_long_rest_does_not_blind_the_azimuth_watch() -> None:
+    """60 s still before the ground robot of seed 3 (a car parked, or driving straight: the field does not turn): the
+    series fit of the rest was refused on the azimuths and watched the new points under its own calibration, which
+    60 s of one direction leave far off (a real car's: gains 2.1 and 0.16); the ring's azimuths under it stalled short
+    of 90 % and the next fit waited for the series to double (65.5 s after the rest, 30.1 s without it). The raw
+    readings' circle is watched too (``partial._raw_turned``)."""
+    without = _first_with_rest("ground", 3, 0.0)
+    with_rest = _first_with_rest("ground", 3, 60.0)
+    assert without is not None and with_rest is not None, (without, with_rest)
+    assert with_rest <= without + 60.0 + 10.0, (without, with_rest)
+
+
+def test_the_raw_watch_wants_a_traced_circle() -> None:
+    """``_raw_turned``: a circle's readings (with a hard iron and noise) are a full turn; half a circle, a still
+    sensor's noise, or a scatter are not."""
+    from ros_margcal.stream.partial import _raw_turned
+
+    rng = np.random.default_rng(5)
+    a = np.linspace(0.0, 2.0 * np.pi, 60, endpoint=False)
+    ring = np.c_[20.0 + 9.0 * np.cos(a), -5.0 + 8.0 * np.sin(a)] + rng.normal(scale=0.2, size=(60, 2))
+    assert _raw_turned(ring.tolist(), 0.9 * 36)
+    assert not _raw_turned(ring[:30].tolist(), 0.9 * 36)
+    assert not _raw_turned((np.array([20.0, -5.0]) + rng.normal(scale=0.05, size=(60, 2))).tolist(), 0.9 * 36)
+    assert not _raw_turned((np.array([20.0, -5.0]) + rng.normal(scale=5.0, size=(60, 2))).tolist(), 0.9 * 36)
