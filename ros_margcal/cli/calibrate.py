@@ -44,7 +44,7 @@ from typing import Any
 
 import numpy as np
 
-from ..coverage.gate import InactivityGate
+from ..coverage.gate import LEARN_CAP, InactivityGate
 from ..model.calibration import MODELS, Calibration
 from ..model.calibration_file import save_calibrations
 from ..model.errors import ConfigError, ConvergenceError, DegenerateDataError, RecordingError
@@ -173,6 +173,8 @@ def still_samples(rec: Any, cfg: PipelineConfig | None = None) -> np.ndarray:
         if math.isfinite(max(quietest)):
             need = float(f"{1.5 * max(quietest):.2g}")
             quiet = f"; its quietest window: CV {quietest[0]:.2g}, axis spread {quietest[1]:.2g}"
+            if max(quietest) > LEARN_CAP:  # more than a MEMS part at rest is learnt to show: likely a move
+                quiet += f", above the {LEARN_CAP:g} a part at rest is learnt to show: was it moving all through?"
             hint = f"--set accel.gate_cv_threshold={need:g} if the sensor lay still that long (its rest noise)"
         else:
             hint = f"--set accel.gate_cv_threshold=... above the sensor's rest noise; no {window:g} s window filled"

@@ -70,7 +70,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..model.errors import ConfigError
 
-__all__ = ["GyroAidedGate", "InactivityGate"]
+__all__ = ["LEARN_CAP", "GyroAidedGate", "InactivityGate"]
 
 _log = logging.getLogger(__name__)
 
