@@ -47,7 +47,7 @@ from ros_margcal.model.errors import ConvergenceError, DegenerateDataError, Reco
 from ros_margcal.model.fitting import fit
 from ros_margcal.model.heading import attitudes
 from ros_margcal.recordings.read import read_recording
-from ros_margcal.stream.calibrator import SensorCalibrator
+from ros_margcal.stream.calibrator import EventKind, SensorCalibrator
 from ros_margcal.stream.config import STATIC_SPREAD, relative_spread, white_noise
 from ros_margcal.stream.replay import replay
 from ros_margcal.stream.status import State
@@ -221,7 +221,7 @@ def against_reference_yaw(path: Path, unit: str) -> list[str]:
     gyro = None if rec.gyro is None else np.asarray(rec.gyro, dtype=np.float64)
     for k, tk in enumerate(t.tolist()):
         for e in cal.push(tk, raw[k], None if gyro is None else gyro[k]):
-            if e.calibration is None or e.kind.value != "calibrated":
+            if e.calibration is None or e.kind is not EventKind.CALIBRATED:
                 continue
             st = cal.status(tk)
             lines.append(f"| {name} | stream | {tk - t[0]:.1f} s | {reference_heading_p95(e.calibration.apply(raw), att):.2f}° "

@@ -84,3 +84,22 @@ made without any code of the package."""
 def independent() -> ModuleType:
     """The independent generator (see ``INDEPENDENT``)."""
     return INDEPENDENT
+
+
+SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
+
+
+def load_script(name: str) -> ModuleType:
+    """``scripts/NAME.py`` as a module, loaded with scripts/ importable (as when it runs); the test is skipped when the
+    checkout has no scripts/."""
+    path = SCRIPTS / f"{name}.py"
+    if not path.exists():
+        pytest.skip("scripts/ is not in this checkout")
+    mp = pytest.MonkeyPatch()
+    mp.syspath_prepend(str(SCRIPTS))
+    spec = importlib.util.spec_from_file_location(name, path)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    mp.undo()
+    return module

@@ -143,8 +143,8 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         self._recent_t: deque[float] = deque(maxlen=cfg.recent_samples)
         self._recent_v: deque[tuple[float, float, float]] = deque(maxlen=cfg.recent_samples)
         self._recent_r: deque[float] = deque(maxlen=cfg.recent_samples)
-        self._early_t: deque[float] = deque(maxlen=2 * cfg.recent_samples)  # an early fit's window (partial.py)
-        self._early_v: deque[tuple[float, float, float]] = deque(maxlen=2 * cfg.recent_samples)
+        self._early_t: deque[float] = deque(maxlen=2 * cfg.recent_samples)  # an early fit's window (partial.py), filled
+        self._early_v: deque[tuple[float, float, float]] = deque(maxlen=2 * cfg.recent_samples)  # while early fits may run
         self._intake = Intake(cfg, use_gyro=self._gate is not None or cfg.gyro_aided)
         self._spikes = SpikeFilter()
         self._rails_found = 0  # the intake's rails seen (_rail_found)
@@ -349,22 +349,24 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         rails = self._intake.rails
         self._rails_found = rails.found
         gone = self._buffer.discard(rails.on_rail)
-        for names in (("_recent_t", "_recent_v", "_recent_r"), ("_early_t", "_early_v")):
-            keep = [not rails.on_rail(*v) for v in getattr(self, names[1])]
-            if all(keep):
-                continue
-            if names[0] == "_recent_t":
-                gone = max(gone, keep.count(False))
-            for name in names:
-                old = getattr(self, name)
-                if len(old) == len(keep):  # they are appended together (never raise in push for a deque out of step)
-                    setattr(self, name, deque((a for a, k in zip(old, keep, strict=True) if k), maxlen=old.maxlen))
+        gone = max(gone, self._drop_on_rail(("_recent_t", "_recent_v", "_recent_r")))
+        self._drop_on_rail(("_early_t", "_early_v"))
         if self._cal is None:
             self._series.clear()
             self._series_times.clear()
             self._series_acc = [0.0, 0.0, 0.0, 0.0, 0.0]
         log.warning("%s: saturated: %s (readings pinned there while the sensor turned): dropped from now on, and %d "
                     "that went in before taken out", self.sensor, rails.where(self.config.unit), gone)
+
+    def _drop_on_rail(self, names: tuple[str, ...]) -> int:
+        """Take the samples on a rail out of the deques ``names`` (appended together, the readings second); how many."""
+        rails = self._intake.rails
+        keep = [not rails.on_rail(*v) for v in getattr(self, names[1])]
+        for name in names if not all(keep) else ():
+            old = getattr(self, name)
+            if len(old) == len(keep):  # they are appended together (never raise in push for a deque out of step)
+                setattr(self, name, deque((a for a, k in zip(old, keep, strict=True) if k), maxlen=old.maxlen))
+        return keep.count(False)
 
     def _limits_relearnt(self, t: float) -> None:
         """The intake relearnt its magnitude limits (a unit without a known scale): before a calibration, what
@@ -391,8 +393,9 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         r = self._rel_error(x, y, z) if self._cal is not None else 0.0
         self._recent_t.append(t)
         self._recent_v.append((x, y, z))
-        self._early_t.append(t)
-        self._early_v.append((x, y, z))
+        if self._cal is None or self._early_installed:  # once neither, no early fit runs again (partial._early_open)
+            self._early_t.append(t)
+            self._early_v.append((x, y, z))
         self._recent_r.append(r)
         self._series_push(t, x, y, z)
         if self._cal is not None and not self._changed:

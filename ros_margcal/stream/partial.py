@@ -159,7 +159,7 @@ class PartialCalibration:
     _changed: bool
     _recent_v: Any
     _recent_t: Any
-    _early_v: Any
+    _early_v: Any  # filled by the calibrator while ``_cal is None or _early_installed``
     _early_t: Any
     _buffer: Any
 
@@ -595,7 +595,7 @@ class PartialCalibration:
             return (f"; partial: updated {','.join(res.updated) or 'none'}, from the {res.prior_kind} prior "
                     f"{','.join(res.from_prior) or 'none'}; heading p95 {format_bound(res.heading_seen_deg)} at the tilt seen "
                     f"({res.tilt_seen_deg:.1f} deg){_level_note(res)}")
-        self._partial, self._partial_note = None, ""
+        self._partial, self._partial_note, self._early_installed = None, "", False
         if job.get("mounting") is not None:
             self._mount_note(job["mounting"])
         got = job.get("figures")

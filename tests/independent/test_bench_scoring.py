@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
 from types import ModuleType
@@ -10,27 +9,16 @@ from types import ModuleType
 import margcal_independent_generator as gen  # loaded once by tests/conftest.py
 import numpy as np
 import pytest
+from conftest import load_script
 
 from ros_margcal.diagnosis.baseline_noise import shaped_truth
 from ros_margcal.model.calibration import Calibration
 
-SCRIPTS = Path(__file__).resolve().parents[2] / "scripts"
-
 
 @pytest.fixture(scope="module")
 def bench() -> ModuleType:
-    """The benchmark script, loaded by path with scripts/ importable (as when it runs)."""
-    path = SCRIPTS / "bench_diagnosis_independent.py"
-    if not path.exists():
-        pytest.skip("scripts/ is not in this checkout")
-    mp = pytest.MonkeyPatch()
-    mp.syspath_prepend(str(SCRIPTS))
-    spec = importlib.util.spec_from_file_location("bench_diagnosis_independent", path)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    mp.undo()
-    return module
+    """The script, loaded as when it runs (``conftest.load_script``)."""
+    return load_script("bench_diagnosis_independent")
 
 
 def test_the_shape_is_the_one_the_diagnosis_tolerates(bench: ModuleType) -> None:

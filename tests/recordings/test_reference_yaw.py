@@ -3,30 +3,18 @@
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 from types import ModuleType
 
 import numpy as np
 import pytest
-
-SCRIPTS = Path(__file__).resolve().parents[2] / "scripts"
+from conftest import load_script
 
 
 @pytest.fixture(scope="module")
 def study() -> ModuleType:
-    """The study script, loaded by path with scripts/ importable (as when it runs)."""
-    path = SCRIPTS / "study_real_recordings.py"
-    if not path.exists():
-        pytest.skip("scripts/ is not in this checkout")
-    mp = pytest.MonkeyPatch()
-    mp.syspath_prepend(str(SCRIPTS))
-    spec = importlib.util.spec_from_file_location("study_real_recordings", path)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    mp.undo()
-    return module
+    """The script, loaded as when it runs (``conftest.load_script``)."""
+    return load_script("study_real_recordings")
 
 
 def _car(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:

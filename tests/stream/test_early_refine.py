@@ -206,7 +206,7 @@ def test_an_early_fit_at_100_hz_sees_ten_seconds() -> None:
     published worse than 5 deg; at 50 Hz the same 500 samples as before."""
     rec = INDEPENDENT.generate("mag", "tumble", duration_s=60.0, rate_hz=100.0, seed=43, gyro_scale=0.03,
                                hard_iron_mag=30e-6, symmetric_soft_iron=True)
-    cal, good = SensorCalibrator("mag", PipelineConfig.for_sensor("mag")), None
+    cal, good, widest = SensorCalibrator("mag", PipelineConfig.for_sensor("mag")), None, (0, 0.0)
     for t, v in zip(rec["t"].tolist(), rec["xyz"].tolist(), strict=True):
         for e in cal.push(t, v):
             if e.kind is EventKind.CALIBRATED:
@@ -214,15 +214,23 @@ def test_an_early_fit_at_100_hz_sees_ten_seconds() -> None:
                 err = INDEPENDENT.heading_p95(c.matrix, c.offset, rec["truth"], 30.0)
                 assert err <= 5.0, (t, err)  # no wrong acceptance (bench_speed.py's standard)
                 good = good if good is not None or err > 1.0 else t
+        if cal._early_open() and len(cal._early_t):  # the window an early fit would read now: all of the last 10 s
+            stamps, samples = cal._early_window()
+            assert len(samples) <= 2 * cal.config.recent_samples
+            assert stamps[-1] - stamps[0] >= min(t - rec["t"][0], cal.EARLY_SPAN_S) - 0.02, (t, stamps[0])
+            widest = max(widest, (len(samples), float(stamps[-1] - stamps[0])))
         if t > 12.0:
             break
     assert good is not None and good < 8.0, good
-    stamps, samples = cal._early_window()
-    assert len(samples) == 2 * cal.config.recent_samples and 9.9 < stamps[-1] - stamps[0] < 10.0
-    slow = SensorCalibrator("mag", PipelineConfig.for_sensor("mag"))
-    for t, v in zip(rec["t"][::2].tolist(), rec["xyz"][::2].tolist(), strict=True):  # the same motion at 50 Hz
-        slow.push(t, v)
-        if t > 12.0:
-            break
-    stamps, samples = slow._early_window()
-    assert samples == list(slow._recent_v) and len(samples) == slow.config.recent_samples
+    assert widest[0] > cal.config.recent_samples, widest  # more than the recent samples (5 s here): 7 s when it passed
+    for rate, n in ((50.0, 500), (100.0, 1000), (200.0, 1000)):  # 15 s still, uncalibrated: early fits stay open
+        still = SensorCalibrator("mag", PipelineConfig.for_sensor("mag"))
+        noise = np.random.default_rng(int(rate)).normal(scale=0.1e-6, size=(int(15 * rate), 3))
+        for k, v in enumerate(np.array([20e-6, -5e-6, 40e-6]) + noise):
+            still.push(k / rate, v)
+        stamps, samples = still._early_window()
+        assert still._early_open() and len(samples) == n, (rate, len(samples))
+        if rate == 50.0:
+            assert samples == list(still._recent_v)  # at 50 Hz the recent samples, as before
+        else:
+            assert stamps[-1] - stamps[0] == pytest.approx(min(10.0, (n - 1) / rate), abs=1e-9)
