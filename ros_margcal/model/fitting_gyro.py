@@ -42,6 +42,7 @@ to 0.12 / 0.19 deg with 1 s blocks (0.26 / 0.16 and 0.53 / 0.67 deg with 0.2 s b
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -50,9 +51,9 @@ from numpy.typing import ArrayLike, NDArray
 from .errors import InputError
 from .fitting_core import mad_sigma, unpack
 
-__all__ = ["FRAME_BETTER", "GYRO_BIAS_STD", "GYRO_SCALE_STD", "MIN_EXPLAINED", "SIGNED_PERMUTATIONS", "GyroBlocks",
-           "GyroTerm", "axial", "explained", "frame_check", "frame_name", "frame_shares", "gyro_blocks", "gyro_residuals",
-           "rotated_blocks", "skew"]
+__all__ = ["FRAME_BETTER", "GYRO_BIAS_STD", "GYRO_SCALE_STD", "MIN_EXPLAINED", "SIGNED_PERMUTATIONS", "UNIT_ERRORS",
+           "GyroBlocks", "GyroTerm", "axial", "explained", "frame_advice", "frame_check", "frame_name", "frame_shares",
+           "gyro_blocks", "gyro_residuals", "rotated_blocks", "skew"]
 
 Array = NDArray[np.float64]
 
@@ -267,19 +268,36 @@ def rotated_blocks(blocks: GyroBlocks, m: ArrayLike) -> GyroBlocks:
                       s_dot=np.einsum("ij,njk->nik", mm, blocks.s_dot), theta_dot=blocks.theta_dot @ mm.T)
 
 
+UNIT_ERRORS = ((180.0 / math.pi, "57.3x larger"), (math.pi / 180.0, "57.3x smaller"))
+"""Rates in the wrong unit, as ``frame_check`` names them: the factor that explains them, and its name (a real
+VN-100 log had its rad/s converted from deg/s twice: 57.3x too small, its own frame explained 3 % of a car's turns,
+the rates taken 57.3x larger 76 %; a rate in deg/s published as rad/s is 57.3x too large)."""
+
+
 def frame_check(blocks: GyroBlocks, offset: ArrayLike, matrix: ArrayLike) -> tuple[str, float, float]:
-    """Does another axis order or sign of the gyro explain the field's turning under the calibration ``(offset,
-    matrix)`` far better than its own frame? Each of the 48 signed permutations ``m`` of the rate (``m omega``,
-    no bias or scale error) is scored by ``explained``; the best is returned when its unexplained share is at
-    most ``FRAME_BETTER`` of the gyro's own frame's: (its name, e.g. ``"(x, y, -z)"``, its share, the own
-    frame's share), else ``("", nan, own share)``. Vectorised over blocks: microseconds per frame."""
+    """Does another axis order or sign of the gyro, or another unit, explain the field's turning under the calibration
+    ``(offset, matrix)`` far better than its own frame? Each of the 48 signed permutations ``m`` of the rate (``m
+    omega``, no bias or scale error), and the rate in its own axes times each factor of ``UNIT_ERRORS``, is scored by
+    ``explained``; the best is returned when its unexplained share is at most ``FRAME_BETTER`` of the gyro's own
+    frame's: (its name, e.g. ``"(x, y, -z)"`` or ``"57.3x larger"``, its share, the own frame's share), else ``("",
+    nan, own share)``. Vectorised over blocks: microseconds per frame."""
     if not len(blocks):
         return "", float("nan"), float("nan")
-    shares = frame_shares(blocks, offset, matrix, _FRAMES)
+    shares = frame_shares(blocks, offset, matrix, _FRAMES + [f * np.eye(3) for f, _ in UNIT_ERRORS])
+    names = [frame_name(m) for m in _FRAMES] + [name for _, name in UNIT_ERRORS]
     own = shares[0]
     if not np.isfinite(shares).any():
         return "", float("nan"), own
     k = int(np.nanargmax(shares))
     if k == 0 or not (1.0 - shares[k]) <= FRAME_BETTER * (1.0 - own):
         return "", float("nan"), own
-    return frame_name(_FRAMES[k]), shares[k], own
+    return names[k], shares[k], own
+
+
+def frame_advice(name: str) -> str:
+    """What a ``frame_check`` name tells the user to check: the IMU's frame, or the rates' unit."""
+    if name == UNIT_ERRORS[0][1]:
+        return f"taken {name}: the rates converted from deg/s to rad/s twice?"
+    if name == UNIT_ERRORS[1][1]:
+        return f"taken {name}: the rates in deg/s, not rad/s (REP-103)?"
+    return f"taken as {name} of the IMU's axes: IMU frame flipped or rotated against the magnetometer?"

@@ -100,10 +100,21 @@ from .calibration import Calibration, FitStats
 from .errors import ConvergenceError, DegenerateDataError, InputError, as_points
 from .fitting_core import mad_sigma, pack, parameter_names, resjac, unpack
 from .fitting_geometric import geometric, norm_spreads
-from .fitting_gyro import GYRO_BIAS_STD, GYRO_SCALE_STD, MIN_EXPLAINED, GyroBlocks, GyroTerm, explained, frame_check
+from .fitting_gyro import (
+    GYRO_BIAS_STD,
+    GYRO_SCALE_STD,
+    MIN_EXPLAINED,
+    UNIT_ERRORS,
+    GyroBlocks,
+    GyroTerm,
+    explained,
+    frame_check,
+)
 from .fitting_level import LevelTerm
 from .fitting_noise import Whitener, noise_model_steps, whitener
 from .steps import Steps, drained
+
+_UNIT_NAMES = {name for _, name in UNIT_ERRORS}  # frame_check's names of a rate in the wrong unit
 
 __all__ = ["BROAD_MATRIX_STD", "BROAD_OFFSET_STD", "UPDATED_VARIANCE_RATIO", "Linearised", "PriorFit", "broad_prior",
            "fit_with_prior", "fit_with_prior_steps", "linearised_at", "posterior_at"]
@@ -337,8 +348,11 @@ def fit_with_prior_steps(points: ArrayLike, prior: Calibration, *, sigma: float 
             alone = yield from fit_with_prior_steps(points, prior, sigma=sigma, inflate=inflate, max_iter=max_iter,
                                                     stamp=stamp, time_ordered=time_ordered, norm_rel_std=norm_rel_std,
                                                     start=start, spread=spread, level=level and bool(frame))
-            # the frame judged again at the magnetometer's own solution, which the wrong rates did not pull
-            frame = frame_check(term.blocks, alone.calibration.offset, alone.calibration.matrix)[0]
+            # the frame judged again at the magnetometer's own solution, which the wrong rates did not pull; a unit
+            # error found at the gyro's solution stands when that one finds none (a real car's near-level ring: its
+            # own solution was no ellipse of a field, under which no rate explains the turning)
+            again_frame = frame_check(term.blocks, alone.calibration.offset, alone.calibration.matrix)[0]
+            frame = again_frame or (frame if frame in _UNIT_NAMES else "")
             return dataclasses.replace(alone, gyro_explained=share_g, gyro_frame=frame)
     r = geometric(z, _geo(theta, term), n0, sp)[0]
     if isinstance(term, LevelTerm):  # the ring's slopes scatter too: in the covariance only (fitting_level)

@@ -234,6 +234,7 @@ class PartialResult:
         level: the fit held the ring's plane level (a near-level ring without a usable gyro).
         mounting: with gyro blocks, the magnetometer's rotation against the IMU found from them under this fit's
             calibration (``model.mounting.find_mounting``; set by ``partial.PartialCalibration``), else None.
+        not_better: a refit refused only for predicting no smaller heading error than the current calibration.
     """
 
     calibration: Calibration | None
@@ -252,6 +253,7 @@ class PartialResult:
     gyro_frame: str = ""
     level: bool = False
     mounting: Mounting | None = None
+    not_better: bool = False
 
 
 def sphere_radius(points: Array) -> float:
@@ -280,6 +282,12 @@ def tilt_seen_deg(cal: Calibration, raw: Array) -> float:
     el = np.degrees(np.arcsin(np.clip(h[:, 2] / np.linalg.norm(h, axis=1), -1.0, 1.0)))
     lo, hi = np.percentile(el, [2.5, 97.5])
     return float(0.5 * (hi - lo))
+
+
+UNHELD_TILT_FACTOR = 2.0
+"""A ring fit refused on its heading figure whose tilt seen is above this many times the ring's own thickness
+(``ring_tilt_deg``), not held level, says so: the fit tilted the ring, the data did not (a real car's ring 6.7 deg
+thick, ``near_level_tilt_deg`` 2.5, read as 24 deg of tilt and 84 deg of heading error)."""
 
 
 AZIMUTH_SECTORS = 36
@@ -456,7 +464,8 @@ def partial_fit_steps(series: Array, prior: Calibration | None, cfg: PipelineCon
             kind = "broad"
         # a near-level ring without a usable gyro: the level term (model.fitting_level), from every default start
         # (a previous solution may sit in the flat ring's valley of a large norm and a nearly vertical field)
-        level = level_ok and sensor == "mag" and ring_tilt_deg(series) <= cfg.near_level_tilt_deg
+        thick = ring_tilt_deg(series) if sensor == "mag" else math.inf
+        level = level_ok and thick <= cfg.near_level_tilt_deg
         norm = cfg.reference_norm or (prior.norm if prior is not None else sphere_radius(series))
         if not (math.isfinite(norm) and norm > 0):
             return PartialResult(None, (), SYM_NAMES, kind, math.nan, math.inf, None, "no field norm from the data")
@@ -520,7 +529,7 @@ def partial_fit_steps(series: Array, prior: Calibration | None, cfg: PipelineCon
     if rich:  # over more than half the sphere the partial standard, else the early one (RICH_REGIONS)
         limit = max(cfg.early_heading_p95_deg, limit) if regions >= RICH_REGIONS else cfg.early_heading_p95_deg
         part = "" if regions >= RICH_REGIONS else f" (directions in {regions} of {len(REGIONS)} regions < {RICH_REGIONS})"
-    reason, over = "", None
+    reason, over, not_better = "", None, False
     if current_heading is not None and (tail := _tail_misfit(cal, series)) > TAIL_FACTOR:
         reason = (f"partial refit: its residual over the newest {TAIL_POINTS} series points is {tail:.1f}x that over "
                   "the rest: they are not of the same sensor (a change the detector has not declared yet?)")
@@ -529,10 +538,15 @@ def partial_fit_steps(series: Array, prior: Calibration | None, cfg: PipelineCon
         reason = (f"partial fit: predicted heading error p95 {where} {format_bound(seen)} > {limit:g} deg" if math.isfinite(seen)
                   else f"partial fit: predicted heading error {where} not determined (no finite covariance)")
         over = limit
+        if not rich and level_ok and cfg.near_level_tilt_deg < thick < tilt / UNHELD_TILT_FACTOR:
+            reason += (f" (the readings leave their ring's plane by {thick:.1f} deg, this fit tilts it {tilt:.1f} deg: "
+                       f"the vertical is not determined; a ring flatter than mag.near_level_tilt_deg = "
+                       f"{cfg.near_level_tilt_deg:g} deg is held level, a field disturbed along the path thickens it)")
     elif current_heading is not None and not like < current_heading:
         at = "" if like is seen else f" ({format_bound(like)} at its {current_tilt:.1f} deg of tilt)"
         reason = (f"partial refit: predicted heading error p95 {format_bound(seen)}{at} not below the current "
                   f"calibration's {format_bound(current_heading)}")
+        not_better = True
     else:
         # a partial refit replaces a partial calibration on its predicted heading (above), not on the
         # residual of the last few seconds, which noise decides as often as the data
@@ -541,4 +555,4 @@ def partial_fit_steps(series: Array, prior: Calibration | None, cfg: PipelineCon
         if rails:
             reason = f"partial fit: {rails}"
     return PartialResult(cal, pf.updated, pf.from_prior, kind, tilt, seen, figs, reason, over, azimuth, pf.residual_sigma,
-                         pf.gyro_explained, pf.gyro_used, pf.gyro_frame, pf.level)
+                         pf.gyro_explained, pf.gyro_used, pf.gyro_frame, pf.level, not_better=not_better)

@@ -57,7 +57,7 @@ from numpy.typing import NDArray
 from ..model.calibration import Calibration
 from ..model.fitting import RUNAWAY_AXIS_RATIO
 from ..model.fitting_geometric import block_means
-from ..model.fitting_gyro import MIN_EXPLAINED, GyroBlocks, gyro_blocks
+from ..model.fitting_gyro import MIN_EXPLAINED, UNIT_ERRORS, GyroBlocks, frame_advice, gyro_blocks
 from ..model.fitting_level import LEVEL_TILT_STD_DEG, circle_centre
 from ..model.heading import format_bound
 from ..model.mounting import Mounting, find_mounting_steps, into_imu_frame, turned
@@ -77,6 +77,9 @@ from .observable import (
 )
 
 __all__ = ["PartialCalibration"]
+
+UNIT_NAMES = {name for _, name in UNIT_ERRORS}
+"""``fitting_gyro.frame_check``'s names of a rate in the wrong unit (the mounting is not judged on such rates)."""
 
 Array = NDArray[np.float64]
 
@@ -110,6 +113,11 @@ class PartialCalibration:
     REFIT_GROWTH = 0.5
     """A published partial calibration is refitted once the series grew by this share (its heading error
     falls by about a fifth meanwhile; refitting at every quarter cost twice the fits for little)."""
+    REFIT_GROWTH_MAX = 4.0
+    """A refit of a full series (``partial_samples`` points) refused for predicting no smaller heading error than the
+    current calibration doubles the wait for the next, from ``REFIT_GROWTH`` up to this share of the series (20 min at
+    the defaults): it sees as much data as the current one did, and on a ring such refits, every 75 s, were refused
+    nine times in ten at about 25 ms each (a sensor change is the change detector's, not the refits')."""
     MOUNT_GROWTH = 1.0
     """A decided mounting is estimated again once the series count grew by this share (tens of ms each: not at
     every series fit); an undecided one at every series fit with gyro blocks."""
@@ -181,6 +189,7 @@ class PartialCalibration:
         self._close_wait = 1  # ... and the series points the next one waits for
         self._early_installed = False  # the current calibration is an early fit's (``_early_open``)
         self._partial_growth = self.PARTIAL_GROWTH  # share of the series to wait for before the next partial fit
+        self._refit_wait = self.REFIT_GROWTH  # the next wait after a full series' refit that was no better (doubles)
         self._early_sigma: float | None = None  # the residual noise of the last early fit
         self._sigma_floor = math.inf  # the smallest residual noise a fit of this stream left (``SPLIT_FACTOR``)
         self._partial_sigma: float | None = None  # the residual noise of the last fit on the series ...
@@ -257,6 +266,10 @@ class PartialCalibration:
             if not job.get("early") and job.get("mount_applied") is self._mount_applied:  # (an early fit's quarter
                 self._watch_azimuths(res.calibration, job.get("series"))  # comes in seconds; a new turn: other axes)
         self._partial_growth = min(max(grow, self.PARTIAL_GROWTH), self.PARTIAL_GROWTH_MAX)
+        if res is not None and res.not_better and len(job.get("series", ())) >= (self._series.maxlen or 0):
+            # a full series: a refit sees as much as the current calibration's did, so it is tried ever more rarely
+            self._refit_wait = min(2.0 * self._refit_wait, self.REFIT_GROWTH_MAX)
+            self._partial_growth = self._refit_wait
         # the series points that came while the fit ran in steps (evaluation.py), watched as if from its snapshot
         since = min(self._series_count - job.get("series_count", self._series_count), len(self._series))
         for px, py, pz, _ in itertools.islice(self._series, len(self._series) - since, None):
@@ -536,7 +549,7 @@ class PartialCalibration:
             self._series_times.popleft()
         self._series_at_attempt, self._series_len_at_attempt = -1, 0
         self._partial_growth, self._partial_start, self._az_watch = self.PARTIAL_GROWTH, None, None
-        self._close_seen, self._close_wait = None, 1
+        self._close_seen, self._close_wait, self._refit_wait = None, 1, self.REFIT_GROWTH
 
     def _turn_readings(self, q: Array) -> None:
         """From now on the series and the gyro rows hold readings turned by ``q`` into the IMU's axes (their rates are
@@ -590,7 +603,7 @@ class PartialCalibration:
             self._partial, self._partial_note = res, ""
             self._early_installed = bool(job.get("early"))
             self._early_close = self._early_installed  # refined at the early cadence while it is open (_early_open)
-            self._partial_growth = self.REFIT_GROWTH  # a refit once the series grew by this share (module docstring)
+            self._partial_growth = self._refit_wait = self.REFIT_GROWTH  # a refit once the series grew by this share
             self._figures = res.figures
             return (f"; partial: updated {','.join(res.updated) or 'none'}, from the {res.prior_kind} prior "
                     f"{','.join(res.from_prior) or 'none'}; heading p95 {format_bound(res.heading_seen_deg)} at the tilt seen "
@@ -627,8 +640,7 @@ class PartialCalibration:
         mount = self._mounting  # the last estimate, of a series fit or a full one (``_full_mounting``)
         if math.isfinite(g) and self._gyro_frame:
             out += (f"; gyro not used: the rate accounts for {100 * g:.0f} % of the field's turning as it comes, far "
-                    f"more taken as {self._gyro_frame} of the IMU's axes: IMU frame flipped or rotated against the "
-                    "magnetometer?")
+                    f"more {frame_advice(self._gyro_frame)}")
         elif math.isfinite(g):
             out += (f"; gyro-aided: the rate accounts for {100 * g:.1f} % of the field's turning" if g >= MIN_EXPLAINED
                     else f"; gyro not used: the rate accounts for {100 * g:.0f} % of the field's turning < "
@@ -636,7 +648,7 @@ class PartialCalibration:
         elif self._gyro_short and self._gyro_applies():
             out += (f"; gyro not used: fewer than {self.GYRO_MIN_BLOCKS} blocks of {self.config.gyro_block_s:g} s with a "
                     f"rate on every sample ({self._gyro_short})")
-        if mount is not None:
+        if mount is not None and not (math.isfinite(g) and self._gyro_frame in UNIT_NAMES):  # a rate's unit first
             note = mount.message(into_imu=self._mount_applied is not None)
             out += f"; {note}" if note else ""
         if self.config.calibrate_into_imu_frame and self._mount_applied is None and self._cal is not None:

@@ -56,7 +56,8 @@ def test_frame_check_names_the_axis_order_that_explains_the_turn() -> None:
     own = gyro_blocks(rec["t"], rec["xyz"], rec["gyro"], 50)
     assert frame_check(own, tr["offset"], tr["W_sym"])[0] == ""
     for rates, name in ((rec["gyro"] * [1.0, 1.0, -1.0], "(x, y, -z)"), (rec["gyro"][:, [1, 0, 2]], "(y, x, z)"),
-                        (rec["gyro"][:, [2, 0, 1]], "(y, z, x)")):
+                        (rec["gyro"][:, [2, 0, 1]], "(y, z, x)"), (np.radians(rec["gyro"]), "57.3x larger"),
+                        (np.degrees(rec["gyro"]), "57.3x smaller")):
         got, share, base = frame_check(gyro_blocks(rec["t"], rec["xyz"], rates, 50), tr["offset"], tr["W_sym"])
         assert got == name and share > 0.95 > base
 

@@ -154,3 +154,39 @@ def test_a_ring_close_to_its_limit_backs_off_while_its_figure_stalls(monkeypatch
     n, n_every = close(calls, first), close(every, first_every)
     assert n_every >= 20 and n <= 0.5 * n_every, (n, n_every)
     assert first <= first_every + 5.0, (first, first_every)
+
+
+def test_refits_of_a_full_series_that_are_no_better_back_off(ground: dict[str, Any],
+                                                             monkeypatch: pytest.MonkeyPatch) -> None:
+    """Once the series is full (a 50 s series here: ``partial_samples`` 250), a refit sees as much as the current
+    calibration did: after one that is no better the next waits twice as long (``REFIT_GROWTH_MAX``). Fewer fits
+    after the series filled, the same first calibration, and the last one published still within 1 deg level."""
+    from ros_margcal.stream.config import PipelineConfig
+
+    cfg = dataclasses.replace(PipelineConfig.for_sensor("mag"), partial_samples=250)
+
+    def run() -> tuple[list[tuple[float, Any]], list[Any]]:
+        calls: list[tuple[float, Any]] = []
+
+        def spy(series: Any, *args: Any, **kw: Any) -> Any:
+            res = yield from REAL_PARTIAL_FIT(series, *args, **kw)
+            calls.append((kw["stamp"], res))
+            return res
+
+        monkeypatch.setattr(partial_module, "partial_fit_steps", spy)
+        cal, published = SensorCalibrator("mag", cfg), []
+        for t, v in zip(ground["t"].tolist(), ground["xyz"], strict=True):
+            published += [e for e in cal.push(t, v) if e.kind is EventKind.CALIBRATED]
+        return calls, published
+
+    calls, published = run()
+    monkeypatch.setattr(PartialCalibration, "REFIT_GROWTH_MAX", PartialCalibration.REFIT_GROWTH)
+    calls_fixed, published_fixed = run()
+    assert published and published_fixed and published[0].t == published_fixed[0].t
+    assert any(r.not_better for _, r in calls_fixed if _ > 60.0)  # the rule had something to do
+    late = [t for t, _ in calls if t > 60.0]
+    late_fixed = [t for t, _ in calls_fixed if t > 60.0]
+    assert len(late) < 0.7 * len(late_fixed), (late, late_fixed)
+    truth = ground["truth"]
+    last = published[-1].calibration
+    assert INDEPENDENT.heading_p95(last.matrix, last.offset, truth, 0.0) < 1.0

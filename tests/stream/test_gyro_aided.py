@@ -60,21 +60,23 @@ def test_with_a_gyro_a_ring_determines_every_parameter(ring: dict[str, Any], alo
     assert 0.5 < st.heading_p95_tilt30_deg / _p95(ring, c, 30.0) < 4.0
 
 
-@pytest.mark.parametrize("how", ["axes swapped", "x/y swapped", "deg/s"])
+@pytest.mark.parametrize("how", ["axes swapped", "x/y swapped", "deg/s", "converted twice"])
 def test_a_gyro_in_another_frame_changes_nothing_and_says_so(ring: dict[str, Any], alone: tuple[SensorCalibrator, list[Any]],
                                                              how: str) -> None:
     cal = SensorCalibrator("mag")
     rates = {"axes swapped": ring["gyro"][:, [1, 0, 2]] * [1.0, -1.0, 1.0], "x/y swapped": ring["gyro"][:, [1, 0, 2]],
-             "deg/s": np.degrees(ring["gyro"])}[how]
+             "deg/s": np.degrees(ring["gyro"]), "converted twice": np.radians(ring["gyro"])}[how]
     events = _feed(cal, ring, rates)
     st = cal.status()
     assert st.gyro_explained is not None
     assert "gyro not used" in st.message
-    if how != "deg/s":  # the rates' true order is named (fitting_gyro.frame_check)
+    if how == "converted twice":  # a real VN-100 log's rates (fitting_gyro.UNIT_ERRORS)
+        assert "57.3x larger: the rates converted from deg/s to rad/s twice?" in st.message, st.message
+    elif how != "deg/s":  # the rates' true order is named (fitting_gyro.frame_check)
         name = "(-y, x, z)" if how == "axes swapped" else "(y, x, z)"
         assert f"{name} of the IMU's axes" in st.message and "flipped or rotated" in st.message, st.message
-    else:  # deg/s: no order or sign explains it
-        assert "one frame" in st.message, st.message
+    else:  # deg/s: no order or sign explains it, the unit does (fitting_gyro.UNIT_ERRORS), and the mounting is not judged
+        assert "57.3x smaller: the rates in deg/s, not rad/s" in st.message and "mounting" not in st.message, st.message
     assert [e.t for e in events] == [e.t for e in alone[1]]
     np.testing.assert_array_equal(cal.calibration.offset, alone[0].calibration.offset)
 
@@ -183,12 +185,13 @@ def test_a_short_recording_with_a_rate_on_every_sample_is_not_asked_about_its_im
 
 def test_a_sparse_log_that_the_gyro_does_not_explain_says_how_far_apart_its_samples_are() -> None:
     """Samples 0.5 s apart: "gyro not used" names the spacing before the frames (a real 1.9 Hz log of fast turns
-    explained -12 %); at 50 Hz it asks about the frames alone (the deg/s case above)."""
+    explained -12 %); at 50 Hz it asks about the frames alone."""
     rec = GEN.generate("mag", "ground", duration_s=150.0, rate_hz=50.0, seed=22, tilt_deg=5.0,
                        symmetric_soft_iron=True, hard_iron_mag=30e-6)
     sparse = {k: rec[k][::25] for k in ("t", "xyz", "gyro")}
     cal = SensorCalibrator("mag")
-    _feed(cal, sparse, np.degrees(sparse["gyro"]))  # rates no frame explains
+    shuffled = sparse["gyro"][np.random.default_rng(4).permutation(len(sparse["gyro"]))]
+    _feed(cal, sparse, shuffled)  # rates no axis order or unit explains: another sample's
     st = cal.status()
     assert st.gyro_explained is not None and "gyro not used" in st.message, st.message
     assert "samples 0.5 s apart" in st.message and "one frame" in st.message, st.message
