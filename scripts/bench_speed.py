@@ -103,6 +103,9 @@ def _drive(rec: dict[str, Any], gyro: bool) -> tuple[np.ndarray, np.ndarray, lis
     cal = SensorCalibrator("mag", PipelineConfig.for_sensor("mag"))
     g = rec["gyro"].tolist() if gyro else [None] * len(rec["t"])
     ts, xyz = rec["t"].tolist(), rec["xyz"].tolist()
+    if FREEZE:  # the stream's own lists too (90 000 of them for 30 min: a full pass over them was the longest "push")
+        gc.collect()
+        gc.freeze()
     dts = np.empty(len(ts))
     sts = []
     events = []
