@@ -169,6 +169,7 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         self._fit_times, self._fit_points = np.zeros(0), np.zeros((0, 3))  # the buffer when the calibration was installed
         self._predicted: float | None = None
         self._figures_due = None  # a full fit's heading figures, computed when next read (evaluation.py)
+        self._hold_figures = False  # the push that installed that fit: its figures wait for the next one
         self._sliced = None  # the fit in progress, a step per push (evaluation.py)
         self._indicators: Any = None
         self._last_rejection = ""
@@ -270,7 +271,11 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         if self._sliced is not None:  # a fit in progress: one step a push, whatever the sample (evaluation.py)
             stepped = self._fit_step()
             if stepped:  # it ended: its events first, then this sample under what it installed (no fit in progress now)
-                return stepped + self.push(t, xyz, gyro)
+                self._hold_figures = True  # its heading figures in a later push, not on top of its last step
+                try:
+                    return stepped + self.push(t, xyz, gyro)
+                finally:
+                    self._hold_figures = False
         intake = self._intake
         got = intake.take(t, xyz, gyro)
         if got is None:
@@ -388,7 +393,7 @@ class SensorCalibrator(ChangeDetection, Evaluation):
     def _accept(self, t: float, x: float, y: float, z: float) -> list[Event]:
         events: list[Event] = []
         cfg = self.config
-        if self._figures_due is not None:  # the last full fit's heading figures, a push after it (evaluation.py)
+        if self._figures_due is not None and not self._hold_figures:  # the last full fit's figures, a push after it
             self._settle_figures()
         r = self._rel_error(x, y, z) if self._cal is not None else 0.0
         self._recent_t.append(t)

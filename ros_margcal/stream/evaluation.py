@@ -18,7 +18,9 @@ re-binned about a new centre estimate only when the centre moved significantly (
 sphere fit leaves its axial component to the noise.
 
 **Fits in steps.** Inline, a fit runs one step a push (``model.steps``: a Levenberg-Marquardt solve, half a noise
-model, a mounting estimate), the first in the push whose evaluation started it, from the snapshot that push took;
+model, a mounting estimate), the first in the push after the one whose evaluation started it (the validation, its
+indicators' hull, is a step of its own: with a one-step fit and its install on top, a 30-min tumble's longest push was
+21 ms), from the snapshot that push took;
 no other evaluation starts meanwhile, and the result is installed (or refused) in the push that runs its last step,
 with the stamp of the push that started it, unless the data went stale meanwhile (as in deferred mode). So no
 single sample pays for a whole fit: the longest push of ``scripts/bench_speed.py`` was a partial fit with the gyro,
@@ -236,8 +238,8 @@ class Evaluation(PartialCalibration):
         job["figures_later"] = True  # inline: the figures when next read (module docstring)
         if force:
             return events + self._fit_finish(job, self._fit_compute(job))
-        self._sliced = (job, self._fit_steps(job))
-        return events + self._fit_step()
+        self._sliced = (job, self._fit_steps(job))  # its first step in the next push: not on top of the validation
+        return events
 
     def _runaway_wait(self) -> float:
         """Seconds before a full evaluation after ``_runaways`` fits in a row ran away (0 after none or one)."""

@@ -218,7 +218,7 @@ def test_rejected_fit_is_reported_with_its_reason(tumbling_mag: sim.Recording) -
     """An implausible field norm (range set to exclude 50 µT) is refused: state rejected, level ERROR."""
     cfg = PipelineConfig.for_sensor("mag", norm_min=60e-6, norm_max=70e-6)
     cal = SensorCalibrator("mag", cfg)
-    events = _feed(cal, tumbling_mag)
+    events = _feed(cal, tumbling_mag) + cal.finish_fit()  # a fit the last sample started: to its end (as replay)
     rejected = [e for e in events if e.kind is EventKind.REJECTED]
     assert rejected and "field norm" in rejected[0].message
     st_ = cal.status()
