@@ -52,8 +52,8 @@ from .errors import InputError
 from .fitting_core import mad_sigma, unpack
 
 __all__ = ["FRAME_BETTER", "GYRO_BIAS_STD", "GYRO_SCALE_STD", "MIN_EXPLAINED", "SIGNED_PERMUTATIONS", "UNIT_ERRORS",
-           "GyroBlocks", "GyroTerm", "axial", "explained", "frame_advice", "frame_check", "frame_name", "frame_shares",
-           "gyro_blocks", "gyro_residuals", "rotated_blocks", "skew"]
+           "UNIT_NAMES", "GyroBlocks", "GyroTerm", "axial", "explained", "frame_advice", "frame_check", "frame_name",
+           "frame_shares", "gyro_blocks", "gyro_residuals", "rotated_blocks", "skew"]
 
 Array = NDArray[np.float64]
 
@@ -272,6 +272,8 @@ UNIT_ERRORS = ((180.0 / math.pi, "57.3x larger"), (math.pi / 180.0, "57.3x small
 """Rates in the wrong unit, as ``frame_check`` names them: the factor that explains them, and its name (a real
 VN-100 log had its rad/s converted from deg/s twice: 57.3x too small, its own frame explained 3 % of a car's turns,
 the rates taken 57.3x larger 76 %; a rate in deg/s published as rad/s is 57.3x too large)."""
+UNIT_NAMES = frozenset(name for _, name in UNIT_ERRORS)
+"""``frame_check``'s names of a rate in the wrong unit."""
 
 
 def frame_check(blocks: GyroBlocks, offset: ArrayLike, matrix: ArrayLike) -> tuple[str, float, float]:

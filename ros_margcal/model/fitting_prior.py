@@ -104,7 +104,7 @@ from .fitting_gyro import (
     GYRO_BIAS_STD,
     GYRO_SCALE_STD,
     MIN_EXPLAINED,
-    UNIT_ERRORS,
+    UNIT_NAMES,
     GyroBlocks,
     GyroTerm,
     explained,
@@ -113,8 +113,6 @@ from .fitting_gyro import (
 from .fitting_level import LevelTerm
 from .fitting_noise import Whitener, noise_model_steps, whitener
 from .steps import Steps, drained
-
-_UNIT_NAMES = {name for _, name in UNIT_ERRORS}  # frame_check's names of a rate in the wrong unit
 
 __all__ = ["BROAD_MATRIX_STD", "BROAD_OFFSET_STD", "UPDATED_VARIANCE_RATIO", "Linearised", "PriorFit", "broad_prior",
            "fit_with_prior", "fit_with_prior_steps", "linearised_at", "posterior_at"]
@@ -352,7 +350,7 @@ def fit_with_prior_steps(points: ArrayLike, prior: Calibration, *, sigma: float 
             # error found at the gyro's solution stands when that one finds none (a real car's near-level ring: its
             # own solution was no ellipse of a field, under which no rate explains the turning)
             again_frame = frame_check(term.blocks, alone.calibration.offset, alone.calibration.matrix)[0]
-            frame = again_frame or (frame if frame in _UNIT_NAMES else "")
+            frame = again_frame or (frame if frame in UNIT_NAMES else "")
             return dataclasses.replace(alone, gyro_explained=share_g, gyro_frame=frame)
     r = geometric(z, _geo(theta, term), n0, sp)[0]
     if isinstance(term, LevelTerm):  # the ring's slopes scatter too: in the covariance only (fitting_level)

@@ -57,7 +57,7 @@ from numpy.typing import NDArray
 from ..model.calibration import Calibration
 from ..model.fitting import RUNAWAY_AXIS_RATIO
 from ..model.fitting_geometric import block_means
-from ..model.fitting_gyro import MIN_EXPLAINED, UNIT_ERRORS, GyroBlocks, frame_advice, gyro_blocks
+from ..model.fitting_gyro import MIN_EXPLAINED, UNIT_NAMES, GyroBlocks, frame_advice, gyro_blocks
 from ..model.fitting_level import LEVEL_TILT_STD_DEG, circle_centre
 from ..model.heading import format_bound
 from ..model.mounting import Mounting, find_mounting_steps, into_imu_frame, turned
@@ -77,9 +77,6 @@ from .observable import (
 )
 
 __all__ = ["PartialCalibration"]
-
-UNIT_NAMES = {name for _, name in UNIT_ERRORS}
-"""``fitting_gyro.frame_check``'s names of a rate in the wrong unit (the mounting is not judged on such rates)."""
 
 Array = NDArray[np.float64]
 
