@@ -152,8 +152,10 @@ class PriorFit:
             at the solution (``fitting_gyro.explained``; nan without); below ``MIN_EXPLAINED`` the gyro was
             not used (``gyro_used``) and the fit is the magnetometer's alone.
         gyro_used: the gyro blocks are part of the fit.
-        gyro_frame: another axis order or sign of the rates that explains the field's turning far better
-            (``fitting_gyro.frame_check``, e.g. ``"(x, y, -z)"``): the gyro was then not used; "" otherwise.
+        gyro_frame: another axis order or sign of the rates, or another unit, that explains the field's turning far
+            better (``fitting_gyro.frame_check``, e.g. ``"(x, y, -z)"``): the gyro was then not used; "" otherwise.
+        gyro_frame_shares: with ``gyro_frame``, the share of the turning it explains and the rates' own (no bias or
+            scale error fitted, at the calibration it was judged at); nan otherwise.
         level: the level pseudo-observation was part of the fit (``fit_with_prior(level=True)``, ``fitting_level``).
         gyro_bias: their estimated bias, rad/s, and gyro_scale: their scale errors (zeros when not used).
     """
@@ -171,6 +173,7 @@ class PriorFit:
     gyro_bias: tuple[float, float, float] = (0.0, 0.0, 0.0)
     gyro_scale: tuple[float, float, float] = (0.0, 0.0, 0.0)
     gyro_frame: str = ""
+    gyro_frame_shares: tuple[float, float] = (math.nan, math.nan)
     level: bool = False
 
     @property
@@ -327,7 +330,7 @@ def fit_with_prior_steps(points: ArrayLike, prior: Calibration, *, sigma: float 
     share_g = math.nan
     if isinstance(term, GyroTerm):
         share_g = explained(term.blocks, term.residuals(theta)[0])
-        frame = frame_check(term.blocks, *unpack(theta[:9], "sym"))[0]
+        frame, *shares = frame_check(term.blocks, *unpack(theta[:9], "sym"))
         # a gyro that explains the turn is kept, whatever another axis order would explain on top (a car's small roll
         # and pitch rates leave x and y nearly interchangeable): only a gyro below MIN_EXPLAINED is judged by the frame
         if not share_g >= MIN_EXPLAINED and start is not None:
@@ -349,9 +352,11 @@ def fit_with_prior_steps(points: ArrayLike, prior: Calibration, *, sigma: float 
             # the frame judged again at the magnetometer's own solution, which the wrong rates did not pull; a unit
             # error found at the gyro's solution stands when that one finds none (a real car's near-level ring: its
             # own solution was no ellipse of a field, under which no rate explains the turning)
-            again_frame = frame_check(term.blocks, alone.calibration.offset, alone.calibration.matrix)[0]
-            frame = again_frame or (frame if frame in UNIT_NAMES else "")
-            return dataclasses.replace(alone, gyro_explained=share_g, gyro_frame=frame)
+            again, *again_shares = frame_check(term.blocks, alone.calibration.offset, alone.calibration.matrix)
+            if again or frame not in UNIT_NAMES:
+                frame, shares = again, again_shares
+            return dataclasses.replace(alone, gyro_explained=share_g, gyro_frame=frame,
+                                       gyro_frame_shares=(shares[0], shares[1]) if frame else (math.nan, math.nan))
     r = geometric(z, _geo(theta, term), n0, sp)[0]
     if isinstance(term, LevelTerm):  # the ring's slopes scatter too: in the covariance only (fitting_level)
         term.weight = term.covariance_weight()

@@ -230,7 +230,8 @@ class PartialResult:
         gyro_explained: with gyro blocks, the share of the field's turning the gyro accounted for (nan: none).
         gyro_used: the gyro was part of the fit (it accounted for at least ``fitting_gyro.MIN_EXPLAINED``).
         gyro_frame: the axis order or signs of the rates that would explain the field's turning far better
-            (``fitting_prior.PriorFit.gyro_frame``, e.g. ``"(x, y, -z)"``); "" when none.
+            (``fitting_prior.PriorFit.gyro_frame``, e.g. ``"(x, y, -z)"``); "" when none; gyro_frame_shares: the share
+            of the turning it explains and the rates' own (``PriorFit.gyro_frame_shares``).
         level: the fit held the ring's plane level (a near-level ring without a usable gyro).
         mounting: with gyro blocks, the magnetometer's rotation against the IMU found from them under this fit's
             calibration (``model.mounting.find_mounting``; set by ``partial.PartialCalibration``), else None.
@@ -253,6 +254,7 @@ class PartialResult:
     gyro_frame: str = ""
     level: bool = False
     mounting: Mounting | None = None
+    gyro_frame_shares: tuple[float, float] = (math.nan, math.nan)
     not_better: bool = False
 
 
@@ -502,6 +504,7 @@ def partial_fit_steps(series: Array, prior: Calibration | None, cfg: PipelineCon
             return PartialResult(cal, pf.updated, pf.from_prior, kind, tilt, math.inf, None,
                                  f"partial fit: {what}, not a ring or band: the full path decides", sigma=pf.residual_sigma,
                                  gyro_explained=pf.gyro_explained, gyro_used=pf.gyro_used, gyro_frame=pf.gyro_frame,
+                                 gyro_frame_shares=pf.gyro_frame_shares,
                                  level=pf.level)
         azimuth = azimuth_coverage(cal, series)
         if not rich and not azimuth >= cfg.partial_min_azimuth:
@@ -509,7 +512,8 @@ def partial_fit_steps(series: Array, prior: Calibration | None, cfg: PipelineCon
                                  f"partial fit: the field turned through {100 * azimuth:.0f} % of the azimuths about the "
                                  f"body z axis < {100 * cfg.partial_min_azimuth:.0f} %: not a ground robot's turns",
                                  azimuth=azimuth, sigma=pf.residual_sigma, gyro_explained=pf.gyro_explained,
-                                 gyro_used=pf.gyro_used, gyro_frame=pf.gyro_frame, level=pf.level)
+                                 gyro_used=pf.gyro_used, gyro_frame=pf.gyro_frame,
+                                 gyro_frame_shares=pf.gyro_frame_shares, level=pf.level)
         yield  # the heading figures next
         # "z up on average" holds for a ring, not a tumble or a band (INFER_INCLINATION_MAX_TILT_DEG)
         inc = _inclination(cfg, cal, None if rich or not tilt <= INFER_INCLINATION_MAX_TILT_DEG else series)
@@ -555,4 +559,5 @@ def partial_fit_steps(series: Array, prior: Calibration | None, cfg: PipelineCon
         if rails:
             reason = f"partial fit: {rails}"
     return PartialResult(cal, pf.updated, pf.from_prior, kind, tilt, seen, figs, reason, over, azimuth, pf.residual_sigma,
-                         pf.gyro_explained, pf.gyro_used, pf.gyro_frame, pf.level, not_better=not_better)
+                         pf.gyro_explained, pf.gyro_used, pf.gyro_frame, pf.level, not_better=not_better,
+                         gyro_frame_shares=pf.gyro_frame_shares)

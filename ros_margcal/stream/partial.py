@@ -198,6 +198,7 @@ class PartialCalibration:
         self._gyro_share = math.nan  # the last series fit's share of the field's turning the gyro accounted for
         self._gyro_short = ""  # ... or: it had rates, but too few complete blocks of them (why: ``_short_why``)
         self._gyro_frame = ""  # ... or: the rates re-ordered or with an axis negated explained it far better
+        self._gyro_frame_shares = (math.nan, math.nan)  # ... and how much: that frame, the rates' own (no bias fitted)
         self._mounting: Mounting | None = None  # the last series fit's mounting against the IMU (model.mounting)
         self._mount_applied: Array | None = None  # calibrate_into_imu_frame: the rotation q the readings are turned by ...
         self._turn_axes = (0, 1.0, 1, 1.0, 2, 1.0)  # ... as (axis, sign) of each turned axis: v'_i = sign v[axis]
@@ -231,7 +232,7 @@ class PartialCalibration:
             self._early_sigma = res.sigma
         if res is not None and not job.get("early") and res.calibration is not None:
             self._gyro_share = res.gyro_explained
-            self._gyro_frame = res.gyro_frame
+            self._gyro_frame, self._gyro_frame_shares = res.gyro_frame, res.gyro_frame_shares
             self._gyro_short = job.get("gyro_short") or ""
         if res is not None and not job.get("early") and job.get("prior") is self._prior:
             sound = res.calibration is not None and (not res.reason or res.over_limit is not None)
@@ -636,8 +637,9 @@ class PartialCalibration:
         g = self._gyro_share if self._gyro_applies() else math.nan
         mount = self._mounting  # the last estimate, of a series fit or a full one (``_full_mounting``)
         if math.isfinite(g) and self._gyro_frame:
-            out += (f"; gyro not used: the rate accounts for {100 * g:.0f} % of the field's turning as it comes, far "
-                    f"more {frame_advice(self._gyro_frame)}")
+            named, own = self._gyro_frame_shares  # both without a bias or scale fitted (the fit's share, g, with them)
+            out += (f"; gyro not used: the rate accounts for {100 * own:.0f} % of the field's turning as it comes, "
+                    f"{100 * named:.0f} % {frame_advice(self._gyro_frame)}")
         elif math.isfinite(g):
             out += (f"; gyro-aided: the rate accounts for {100 * g:.1f} % of the field's turning" if g >= MIN_EXPLAINED
                     else f"; gyro not used: the rate accounts for {100 * g:.0f} % of the field's turning < "

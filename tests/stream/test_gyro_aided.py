@@ -5,6 +5,7 @@ the independent generator (tests/independent: no code shared with the package). 
 from __future__ import annotations
 
 import math
+import re
 from types import ModuleType
 from typing import Any
 
@@ -72,6 +73,9 @@ def test_a_gyro_in_another_frame_changes_nothing_and_says_so(ring: dict[str, Any
     assert "gyro not used" in st.message
     if how == "converted twice":  # a real VN-100 log's rates (fitting_gyro.UNIT_ERRORS)
         assert "57.3x larger: the rates converted from deg/s to rad/s twice?" in st.message, st.message
+        own, named = map(int, re.search(r"accounts for (-?\d+) % of the field's turning as it comes, (-?\d+) % taken",
+                                        st.message).groups())
+        assert own < 10 and named > 90, st.message  # both without a bias fitted (a bias absorbs a constant turn rate)
     elif how != "deg/s":  # the rates' true order is named (fitting_gyro.frame_check)
         name = "(-y, x, z)" if how == "axes swapped" else "(y, x, z)"
         assert f"{name} of the IMU's axes" in st.message and "flipped or rotated" in st.message, st.message
