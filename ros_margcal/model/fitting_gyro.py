@@ -51,9 +51,10 @@ from numpy.typing import ArrayLike, NDArray
 from .errors import InputError
 from .fitting_core import mad_sigma, unpack
 
-__all__ = ["FRAME_BETTER", "GYRO_BIAS_STD", "GYRO_SCALE_STD", "MIN_EXPLAINED", "SIGNED_PERMUTATIONS", "UNIT_ERRORS",
-           "UNIT_NAMES", "GyroBlocks", "GyroTerm", "axial", "explained", "frame_advice", "frame_check", "frame_name",
-           "frame_shares", "gyro_blocks", "gyro_residuals", "rotated_blocks", "skew"]
+__all__ = ["FRAME_BETTER", "GYRO_BIAS_STD", "GYRO_SCALE_STD", "MIN_EXPLAINED", "NAMED_MIN_SHARE",
+           "SIGNED_PERMUTATIONS", "UNIT_ERRORS", "UNIT_NAMES", "GyroBlocks", "GyroTerm", "axial", "explained",
+           "frame_advice", "frame_check", "frame_name", "frame_shares", "gyro_blocks", "gyro_residuals", "rotated_blocks",
+           "skew"]
 
 Array = NDArray[np.float64]
 
@@ -268,6 +269,10 @@ def rotated_blocks(blocks: GyroBlocks, m: ArrayLike) -> GyroBlocks:
                       s_dot=np.einsum("ij,njk->nik", mm, blocks.s_dot), theta_dot=blocks.theta_dot @ mm.T)
 
 
+NAMED_MIN_SHARE = 0.5
+"""``frame_check`` names another frame or unit only when it explains at least this share of the field's turning: a real
+log with samples 0.52 s apart, whose own rates explained -1941x, had "57.3x smaller" named at -91 % (far better
+than its own, explaining nothing)."""
 UNIT_ERRORS = ((180.0 / math.pi, "57.3x larger"), (math.pi / 180.0, "57.3x smaller"))
 """Rates in the wrong unit, as ``frame_check`` names them: the factor that explains them, and its name (a real
 VN-100 log had its rad/s converted from deg/s twice: 57.3x too small, its own frame explained 3 % of a car's turns,
@@ -291,7 +296,7 @@ def frame_check(blocks: GyroBlocks, offset: ArrayLike, matrix: ArrayLike) -> tup
     if not np.isfinite(shares).any():
         return "", float("nan"), own
     k = int(np.nanargmax(shares))
-    if k == 0 or not (1.0 - shares[k]) <= FRAME_BETTER * (1.0 - own):
+    if k == 0 or not (1.0 - shares[k]) <= FRAME_BETTER * (1.0 - own) or not shares[k] >= NAMED_MIN_SHARE:
         return "", float("nan"), own
     return names[k], shares[k], own
 

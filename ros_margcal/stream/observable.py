@@ -187,6 +187,9 @@ class HeadingFigures:
 
     inclination_deg: float
     calibration: Calibration
+    vertical_note: str = ""
+    """Non-empty when the fit's vertical is not the Earth's (``HORIZONTAL_FIELD_DEG``): the ±30° figures are then not
+    determined, and this says why."""
 
     @cached_property
     def level_deg(self) -> float:
@@ -194,7 +197,7 @@ class HeadingFigures:
 
     @cached_property
     def tilt30_deg(self) -> float:
-        return self._figure(heading_p95_quantile, 30.0)
+        return math.nan if self.vertical_note else self._figure(heading_p95_quantile, 30.0)
 
     @cached_property
     def level_typical_deg(self) -> float:
@@ -202,7 +205,7 @@ class HeadingFigures:
 
     @cached_property
     def tilt30_typical_deg(self) -> float:
-        return self._figure(heading_p95_typical, 30.0)
+        return math.nan if self.vertical_note else self._figure(heading_p95_typical, 30.0)
 
     def _figure(self, how: Callable[..., float], tilt: float) -> float:
         """One figure, NaN ("not determined") when it cannot be computed: read by a status, it must not raise."""
@@ -292,6 +295,17 @@ UNHELD_TILT_FACTOR = 2.0
 thick, ``near_level_tilt_deg`` 2.5, read as 24 deg of tilt and 84 deg of heading error)."""
 
 
+HORIZONTAL_FIELD_DEG = 15.0
+"""A ring's fit, without a given field (``reference_norm``, ``heading_inclination_deg``) or the gyro, that puts the
+field within this many degrees of horizontal (the inclination inferred from its own data) has its ±30° figures not
+determined: a flat ring whose readings wander out of its plane (a field that changes along the path, as on a real
+car) is fitted with its z offset where the calibrated field is horizontal and the norm does not see the wander, and
+the covariance calls that vertical determined: the independent generator's +-1 deg ground robot with 1 uT of such
+wander, seeds 1-3, read 5-7 deg of inclination and a 30 deg bound of 3.6-4.0 deg for a true 90.5-91.5 deg (its level
+heading right: 0.51-0.84 deg for 1.2-1.5). The Earth's field is that flat only within about 8 deg of the magnetic
+equator, where the figures need the field given anyway."""
+
+
 AZIMUTH_SECTORS = 36
 """Azimuth sectors (about the body z axis) of ``azimuth_coverage``."""
 
@@ -362,12 +376,20 @@ def _poses_note(cal: Calibration, updated: tuple[str, ...], sensor: str, max_std
     return note + f"{', '.join(loose)} {verb} more poses ({worst}, {shown}: {readings_for(worst, sensor)})"
 
 
-def _figures(cal: Calibration, inc: float) -> HeadingFigures:
+def _figures(cal: Calibration, inc: float, vertical_note: str = "") -> HeadingFigures:
     """The figures of ``cal``, each computed when first read (``HeadingFigures``); the covariance checked now."""
     if cal.covariance is None or tuple(cal.parameter_names) != SYM_NAMES:
         msg = f"heading figures need a covariance over {SYM_NAMES}"
         raise InputError(msg)
-    return HeadingFigures(inc, cal)
+    return HeadingFigures(inc, cal, vertical_note)
+
+
+def _vertical_note(cfg: PipelineConfig, inc: float, gyro_used: bool) -> str:
+    """Why a ring's ±30° figures are not determined (``HORIZONTAL_FIELD_DEG``), or ""."""
+    if cfg.reference_norm or cfg.heading_inclination_deg is not None or gyro_used or not abs(inc) < HORIZONTAL_FIELD_DEG:
+        return ""
+    return (f"the fit puts the field {inc:.3g} deg from horizontal, which a flat ring cannot tell from a field that "
+            "changes along the path: the 30 deg figures are not determined; give the field (--lat/--lon, reference_norm)")
 
 
 def _own_frame(cal: Calibration) -> Calibration:
@@ -520,7 +542,7 @@ def partial_fit_steps(series: Array, prior: Calibration | None, cfg: PipelineCon
         sigma = pf.residual_sigma
         # slow noise longer than the series, which the offset absorbs and no residual shows (model.heading)
         bounded = with_offset_noise(cal, sigma) if sigma is not None and math.isfinite(sigma) and sigma >= 0 else cal
-        figs = _figures(bounded, inc)
+        figs = _figures(bounded, inc, "" if rich else _vertical_note(cfg, inc, pf.gyro_used))
         seen = figs.tilt30_deg if rich else heading_p95_quantile(bounded, tilt_deg=tilt, inclination=inc)
         like = seen  # the refit's figure at the tilt the current calibration was judged at (like with like)
         if (not rich and current_heading is not None and current_tilt is not None and tilt > current_tilt

@@ -634,6 +634,7 @@ class PartialCalibration:
             out += (f"; heading p95 {format_bound(f.level_deg)} level, {format_bound(f.tilt30_deg)} at 30 deg tilt "
                     f"(predicted 95 % bound; typical {format_bound(f.level_typical_deg)} / "
                     f"{format_bound(f.tilt30_typical_deg)}; {f.inclination_deg:.3g} deg field inclination)")
+            out += f" ({f.vertical_note})" if f.vertical_note else ""
         g = self._gyro_share if self._gyro_applies() else math.nan
         mount = self._mounting  # the last estimate, of a series fit or a full one (``_full_mounting``)
         if math.isfinite(g) and self._gyro_frame:

@@ -124,3 +124,28 @@ def test_a_fit_that_tilts_a_ring_not_held_level_says_the_vertical_is_not_determi
     hint = f"the readings leave their ring's plane by {thick:.1f} deg, this fit tilts it {fit_tilt:.1f} deg"
     assert (hint in res.reason) == (fit_tilt > observable.UNHELD_TILT_FACTOR * thick), res.reason
     assert ("mag.near_level_tilt_deg = 0.5 deg is held level" in res.reason) == (fit_tilt > 2 * thick)
+
+
+def test_a_flat_ring_fitted_with_a_horizontal_field_has_no_30_deg_figure() -> None:
+    """A +-1 deg ring whose readings wander 1 uT out of its plane (a field that changes along the path, as on a real
+    car), without a gyro or a given field: the fit makes the calibrated field horizontal, where the norm does not see
+    the wander; its 30 deg bound was 3.6-4.0 deg for a true 90 deg (``observable.HORIZONTAL_FIELD_DEG``). The level
+    figure stays (and holds); the 30 deg one is not determined, and the status says why. Given the field, it is not."""
+    rec = GEN.generate("mag", "ground", duration_s=120.0, rate_hz=40.0, seed=2, tilt_deg=1.0, symmetric_soft_iron=True,
+                       hard_iron_mag=30e-6)
+    xyz = np.asarray(rec["xyz"], dtype=np.float64).copy()
+    wander = np.convolve(np.random.default_rng(2).normal(size=len(xyz)), np.ones(200) / 200, mode="same")
+    xyz[:, 2] += 1e-6 * wander / wander.std()
+    for norm in (None, float(rec["truth"]["norm"])):
+        cal = SensorCalibrator("mag", PipelineConfig.for_sensor("mag", reference_norm=norm))
+        for t, v in zip(rec["t"].tolist(), xyz.tolist(), strict=True):
+            cal.push(t, v)
+        st = cal.status()
+        if norm is None:
+            assert cal.calibration is not None and st.heading_p95_level_deg is not None, st.message
+            assert _level_p95(rec, cal.calibration) <= st.heading_p95_level_deg
+            assert _level_p95(rec, cal.calibration, 30.0) > 45.0  # the vertical is the fit's, not the Earth's
+            assert st.heading_p95_tilt30_deg is None and "not determined at 30 deg tilt" in st.message, st.message
+            assert "which a flat ring cannot tell from a field that changes along the path" in st.message
+        else:
+            assert "flat ring cannot tell" not in st.message, st.message
