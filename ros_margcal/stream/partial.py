@@ -122,6 +122,9 @@ class PartialCalibration:
     """Magnetometer samples further apart than this (median) may leave a fast turn between them unsampled: a "gyro not
     used" says so before asking about frames (a real 1.9 Hz log of fast turns between rests explained -12 %; a smooth
     ground robot's yaw at 2 Hz is still 99 % explained)."""
+    MOST_EXPLAINED = 0.7
+    """A gyro not used that still explains this share of the turning in its own frame is not asked about its frame
+    first (``_gyro_doubt``): the rest is more likely the field than the rates."""
     GYRO_MIN_BLOCKS = 20
     """Fewest gyro blocks (complete, with a rate on every sample) for the gyro to join a series fit."""
     WATCH_RAW_POINTS = 10
@@ -642,9 +645,10 @@ class PartialCalibration:
             out += (f"; gyro not used: the rate accounts for {100 * own:.0f} % of the field's turning as it comes, "
                     f"{100 * named:.0f} % {frame_advice(self._gyro_frame)}")
         elif math.isfinite(g):
+            digits = 1 if abs(g) < 1.0 else 0  # 89.7 %, not "90 % < 90 %"; -802 %, not -802.3
             out += (f"; gyro-aided: the rate accounts for {100 * g:.1f} % of the field's turning" if g >= MIN_EXPLAINED
-                    else f"; gyro not used: the rate accounts for {100 * g:.0f} % of the field's turning < "
-                         f"{100 * MIN_EXPLAINED:.0f} % ({self._gyro_doubt()})")
+                    else f"; gyro not used: the rate accounts for {100 * g:.{digits}f} % of the field's turning < "
+                         f"{100 * MIN_EXPLAINED:.0f} % ({self._gyro_doubt(g)})")
         elif self._gyro_short and self._gyro_applies():
             out += (f"; gyro not used: fewer than {self.GYRO_MIN_BLOCKS} blocks of {self.config.gyro_block_s:g} s with a "
                     f"rate on every sample ({self._gyro_short})")
@@ -658,12 +662,16 @@ class PartialCalibration:
             out += f"; {self._partial_note}"
         return out
 
-    def _gyro_doubt(self) -> str:
-        """Why a gyro may not explain the turning: samples too far apart to integrate its rate (``GYRO_SPARSE_S``),
-        else the frames or the timing."""
+    def _gyro_doubt(self, share: float) -> str:
+        """Why a gyro may not explain the turning (``share`` of it): samples too far apart to integrate its rate
+        (``GYRO_SPARSE_S``), else the frames or the timing; with most of it explained in its own frame
+        (``MOST_EXPLAINED``), a field that changes along the path first (a ring with 3 uT of wander: 89-90 %)."""
         t = np.fromiter((r[0] for r in self._gyro_buf), dtype=np.float64, count=len(self._gyro_buf))
         step = float(np.median(np.diff(t))) if len(t) > 2 else 0.0
         frames = "are the IMU and magnetometer in one frame, in step?"
+        if share >= self.MOST_EXPLAINED:
+            frames = ("most of it in the rates' own frame: a field that changes along the path (iron near the route), "
+                      "or the IMU and magnetometer out of step?")
         if step > self.GYRO_SPARSE_S:
             return f"samples {step:.2g} s apart: a rate integrated over that long misses a fast turn; else {frames}"
         return frames
