@@ -168,9 +168,6 @@ def worker(cases: list[str], seeds: list[int]) -> None:
     for name in cases:
         for seed in seeds:
             rec = _record(gen, name, seed)
-            if FREEZE:
-                gc.collect()
-                gc.freeze()
             for gyro in (False, True):
                 dts, sts, events = _drive(rec, gyro)
                 all_in = (float(dts.sum()) + float(sts.sum())) / len(dts) - cost * (1.0 + len(sts) / len(dts))

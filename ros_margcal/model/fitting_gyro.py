@@ -279,6 +279,9 @@ VN-100 log had its rad/s converted from deg/s twice: 57.3x too small, its own fr
 the rates taken 57.3x larger 76 %; a rate in deg/s published as rad/s is 57.3x too large)."""
 UNIT_NAMES = frozenset(name for _, name in UNIT_ERRORS)
 """``frame_check``'s names of a rate in the wrong unit."""
+_CHECKED = _FRAMES + [f * np.eye(3) for f, _ in UNIT_ERRORS]
+_CHECKED_NAMES = [frame_name(m) for m in _FRAMES] + [name for _, name in UNIT_ERRORS]
+"""What ``frame_check`` scores (the 48 signed axis orders, then the units) and their names."""
 
 
 def frame_check(blocks: GyroBlocks, offset: ArrayLike, matrix: ArrayLike) -> tuple[str, float, float]:
@@ -290,15 +293,14 @@ def frame_check(blocks: GyroBlocks, offset: ArrayLike, matrix: ArrayLike) -> tup
     nan, own share)``. Vectorised over blocks: microseconds per frame."""
     if not len(blocks):
         return "", float("nan"), float("nan")
-    shares = frame_shares(blocks, offset, matrix, _FRAMES + [f * np.eye(3) for f, _ in UNIT_ERRORS])
-    names = [frame_name(m) for m in _FRAMES] + [name for _, name in UNIT_ERRORS]
+    shares = frame_shares(blocks, offset, matrix, _CHECKED)
     own = shares[0]
     if not np.isfinite(shares).any():
         return "", float("nan"), own
     k = int(np.nanargmax(shares))
     if k == 0 or not (1.0 - shares[k]) <= FRAME_BETTER * (1.0 - own) or not shares[k] >= NAMED_MIN_SHARE:
         return "", float("nan"), own
-    return names[k], shares[k], own
+    return _CHECKED_NAMES[k], shares[k], own
 
 
 def frame_advice(name: str) -> str:
