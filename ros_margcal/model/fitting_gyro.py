@@ -54,7 +54,7 @@ from .fitting_core import mad_sigma, unpack
 __all__ = ["FRAME_BETTER", "GYRO_BIAS_STD", "GYRO_SCALE_STD", "MIN_EXPLAINED", "NAMED_MIN_SHARE",
            "SIGNED_PERMUTATIONS", "UNIT_ERRORS", "UNIT_NAMES", "GyroBlocks", "GyroTerm", "axial", "explained",
            "frame_advice", "frame_check", "frame_name", "frame_shares", "gyro_blocks", "gyro_residuals", "rotated_blocks",
-           "skew"]
+           "skew", "turning_share"]
 
 Array = NDArray[np.float64]
 
@@ -221,6 +221,16 @@ def explained(blocks: GyroBlocks, r: Array) -> float:
     at a solution: ``1 - sum r^2 / sum |d|^2`` (1: all of it; nan without change)."""
     total = float(np.sum(blocks.d * blocks.d))
     return 1.0 - float(np.sum(np.square(r))) / total if total > 0 else float("nan")
+
+
+def turning_share(share: float, digits: int = 1) -> str:
+    """``share`` (``explained``) as a status says it: "97.7 % of the field's turning", or for a negative share (a rate
+    that predicts far more turning than the field shows) "none of the field's turning (misfit 55x the turning)":
+    rates 57.3x too large read "-304702 %", a figure nobody can use."""
+    if not share < 0.0:
+        return f"{100 * share:.{digits}f} % of the field's turning"
+    k = math.sqrt(1.0 - share)
+    return f"none of the field's turning (misfit {k:.{0 if k >= 10.0 else 1}f}x the turning)"
 
 
 def _signed_permutations() -> list[Array]:

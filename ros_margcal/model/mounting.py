@@ -56,14 +56,18 @@ from .fitting_gyro import (
     GYRO_BIAS_STD,
     GYRO_SCALE_STD,
     MIN_EXPLAINED,
+    NAMED_MIN_SHARE,
     SIGNED_PERMUTATIONS,
+    UNIT_ERRORS,
     GyroBlocks,
     axial,
     explained,
+    frame_advice,
     frame_shares,
     gyro_residuals,
     rotated_blocks,
     skew,
+    turning_share,
 )
 from .fitting_jackknife import grouped_jackknife
 from .steps import Steps, drained
@@ -382,6 +386,23 @@ def _covariance(best: _Refined, blocks: GyroBlocks, b: Array, w: Array, cal_cov:
     return 0.5 * (cov + cov.T)
 
 
+def _none_fits(blocks: GyroBlocks, b: Array, w: Array, share: float) -> str:
+    """Why no axis-aligned rotation fits (the best explains ``share``), naming rates in the wrong unit when one of the
+    24 rotations explains the turning with them 57.3x larger or smaller (``fitting_gyro.UNIT_ERRORS``, named as
+    ``frame_check`` names them): a tumble's rates converted from deg/s twice read "the best explains 4.7 %" and no more."""
+    why = (f"no axis-aligned rotation fits: the best explains {turning_share(share)}"
+           + (f" < {100 * MIN_EXPLAINED:.0f} %" if share >= 0.0 else ""))
+    cands = [(name, r) for _, name in UNIT_ERRORS for r in ROTATIONS]
+    shares = np.asarray(frame_shares(blocks, b, w, [f * r.T for f, _ in UNIT_ERRORS for r in ROTATIONS]))
+    if not np.isfinite(shares).any():
+        return why
+    k = int(np.nanargmax(shares))
+    if not (shares[k] >= NAMED_MIN_SHARE and (1.0 - shares[k]) <= FRAME_BETTER * (1.0 - share)):
+        return why
+    name, r = cands[k]
+    return f"{why}; {100 * shares[k]:.0f} % under {rotation_name(r)}, {frame_advice(name)}"
+
+
 def find_mounting(blocks: GyroBlocks, offset: ArrayLike, matrix: ArrayLike, covariance: ArrayLike | None = None, *,
                   gyro_scale_std: float = GYRO_SCALE_STD) -> Mounting:
     """The magnetometer's mounting rotation against the IMU from the gyro blocks under the calibration ``(offset,
@@ -438,8 +459,7 @@ def find_mounting_steps(blocks: GyroBlocks, offset: ArrayLike, matrix: ArrayLike
     if mirror:
         return Mounting(None, "", **common, reason="a mirror image explains the turn: a wiring or sign fault")
     if not share >= MIN_EXPLAINED:
-        return Mounting(None, "", **common, reason=(f"no axis-aligned rotation fits: the best explains {100 * share:.1f} % "
-                                                    f"of the field's turning < {100 * MIN_EXPLAINED:.0f} %"))
+        return Mounting(None, "", **common, reason=_none_fits(blocks, b, w, share))
     if not chi2 >= DECIDE_CHI2:
         along = _axis_name(r0.T[:, "xyz".index(turn)]) if turn in ("x", "y", "z") else ""
         why = (f"the body turned about the imu's {turn} alone: the magnetometer's {along} lies along it, its rotation "

@@ -57,7 +57,7 @@ from numpy.typing import NDArray
 from ..model.calibration import Calibration
 from ..model.fitting import RUNAWAY_AXIS_RATIO
 from ..model.fitting_geometric import block_means
-from ..model.fitting_gyro import MIN_EXPLAINED, UNIT_NAMES, GyroBlocks, frame_advice, gyro_blocks
+from ..model.fitting_gyro import MIN_EXPLAINED, UNIT_NAMES, GyroBlocks, frame_advice, gyro_blocks, turning_share
 from ..model.fitting_level import LEVEL_TILT_STD_DEG, circle_centre
 from ..model.heading import format_bound
 from ..model.mounting import Mounting, find_mounting_steps, into_imu_frame, turned
@@ -642,13 +642,12 @@ class PartialCalibration:
         mount = self._mounting  # the last estimate, of a series fit or a full one (``_full_mounting``)
         if math.isfinite(g) and self._gyro_frame:
             named, own = self._gyro_frame_shares  # both without a bias or scale fitted (the fit's share, g, with them)
-            out += (f"; gyro not used: the rate accounts for {100 * own:.0f} % of the field's turning as it comes, "
+            out += (f"; gyro not used: the rate accounts for {turning_share(own, 0)} as it comes, "
                     f"{100 * named:.0f} % {frame_advice(self._gyro_frame)}")
-        elif math.isfinite(g):
-            digits = 1 if abs(g) < 1.0 else 0  # 89.7 %, not "90 % < 90 %"; -802 %, not -802.3
-            out += (f"; gyro-aided: the rate accounts for {100 * g:.1f} % of the field's turning" if g >= MIN_EXPLAINED
-                    else f"; gyro not used: the rate accounts for {100 * g:.{digits}f} % of the field's turning < "
-                         f"{100 * MIN_EXPLAINED:.0f} % ({self._gyro_doubt(g)})")
+        elif math.isfinite(g):  # 89.7 %, not "90 % < 90 %"; "none" for a negative share (turning_share)
+            out += (f"; gyro-aided: the rate accounts for {turning_share(g)}" if g >= MIN_EXPLAINED
+                    else f"; gyro not used: the rate accounts for {turning_share(g)}"
+                         f"{f' < {100 * MIN_EXPLAINED:.0f} %' if g >= 0.0 else ''} ({self._gyro_doubt(g)})")
         elif self._gyro_short and self._gyro_applies():
             out += (f"; gyro not used: fewer than {self.GYRO_MIN_BLOCKS} blocks of {self.config.gyro_block_s:g} s with a "
                     f"rate on every sample ({self._gyro_short})")

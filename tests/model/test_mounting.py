@@ -14,7 +14,7 @@ from ros_margcal.model import mounting as mt
 from ros_margcal.model.calibration import Calibration
 from ros_margcal.model.calibration_file import load_calibrations, save_calibrations
 from ros_margcal.model.errors import InputError
-from ros_margcal.model.fitting_gyro import gyro_blocks, gyro_residuals, rotated_blocks
+from ros_margcal.model.fitting_gyro import gyro_blocks, gyro_residuals, rotated_blocks, turning_share
 from ros_margcal.model.mounting import ROTATIONS, axis_angle, find_mounting, into_imu_frame, rotation_name, rotvec
 
 
@@ -110,6 +110,32 @@ def test_rates_of_another_motion_fit_no_rotation_and_few_blocks_decide_nothing(i
     assert m.rotation is None and "no axis-aligned rotation fits" in m.reason
     few = gyro_blocks(rec["t"][:950], rec["xyz"][:950], rec["gyro"][:950], 50)
     assert "fewer than 20" in find_mounting(few, tr["offset"], tr["W_sym"]).reason
+
+
+@pytest.mark.parametrize(("factor", "named"), [(math.pi / 180.0, "57.3x larger: the rates converted from deg/s to rad/s twice?"),
+                                               (180.0 / math.pi, "57.3x smaller: the rates in deg/s, not rad/s (REP-103)?")])
+def test_rates_in_the_wrong_unit_are_named_under_the_rotation_that_fits(independent: ModuleType, factor: float,
+                                                                       named: str) -> None:
+    """A tumble's rates 57.3x off (a driver converting deg/s twice, or not at all), on a magnetometer mounted rotated:
+    no rotation fits them as they come, and the reason names the unit and the rotation under which they explain the
+    turning (it read "the best explains 4.7 %" and no more; 57.3x too large: "-304702 %")."""
+    k = 9
+    rec = _rec(independent, "tumble", k, 0.0, 11, 20.0)
+    tr = rec["truth"]
+    m = find_mounting(_blocks(rec, rec["gyro"] * factor), tr["offset"], tr["W_sym"])
+    assert m.rotation is None and "no axis-aligned rotation fits" in m.reason
+    assert f"under {rotation_name(ROTATIONS[k])}, taken {named}" in m.reason, m.reason
+    assert ("none of the field's turning (misfit" in m.reason) == (factor > 1.0), m.reason
+    right = find_mounting(_blocks(rec), tr["offset"], tr["W_sym"])
+    assert right.rotation is not None and np.allclose(right.rotation, ROTATIONS[k]), right.reason
+
+
+def test_a_negative_share_reads_none_with_its_misfit() -> None:
+    """``turning_share``: a share as a status prints it, a negative one as "none" with the misfit's size."""
+    assert turning_share(0.8974) == "89.7 % of the field's turning"
+    assert turning_share(0.03, 0) == "3 % of the field's turning"
+    assert turning_share(-3047.0) == "none of the field's turning (misfit 55x the turning)"
+    assert turning_share(-0.12) == "none of the field's turning (misfit 1.1x the turning)"
 
 
 def test_into_imu_frame_turns_the_output_and_survives_the_file(independent: ModuleType, tmp_path: Path) -> None:

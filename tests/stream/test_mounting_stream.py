@@ -105,6 +105,19 @@ def test_a_full_fit_with_gyro_rows_gets_the_mounting_and_its_imu_frame_calibrati
     assert _worst_deg(cal.calibration, rec) < 2.0, cal.status().message
 
 
+def test_a_tumbles_rates_in_the_wrong_unit_are_named_in_the_status() -> None:
+    """A tumble whose driver converted the rates from deg/s twice (57.3x too small) on a tipped magnetometer: the
+    calibration is the magnetometer's alone, and the status names the unit under the rotation that fits it."""
+    rec = GEN.generate("mag", "tumble", duration_s=40.0, rate_hz=50.0, seed=27, symmetric_soft_iron=True,
+                       hard_iron_mag=30e-6, gyro_scale=0.03, mag_mount=ROTATIONS[TIPPED])
+    rec = {**rec, "gyro": np.radians(rec["gyro"])}
+    cal = SensorCalibrator("mag")
+    assert _feed(cal, rec) and cal.status().partial is False
+    st = cal.status()
+    assert st.mounting == "not determined" and "no axis-aligned rotation fits" in st.message, st.message
+    assert "under x->x, y->-z, z->y (90 deg about -x), taken 57.3x larger: the rates converted" in st.message, st.message
+
+
 def test_a_full_fit_estimates_the_mounting_only_once_the_rows_grew() -> None:
     """Undecided (e.g. "none fits"): again after a quarter more gyro rows, not at every evaluation; decided: after
     the rows doubled (``_full_mount_due``)."""
