@@ -158,12 +158,12 @@ def first_times(rows: list[dict[str, float]], seeds: tuple[int, ...]) -> str:
 
 
 def coverage(pred: np.ndarray, meas: np.ndarray) -> tuple[int, int, float]:
-    """(covered, judged, median bound / measured) over the rows with both figures; an undetermined
-    bound (NaN) counts as judged and not covered only when the measured error is finite (it is never a pass)."""
-    ok = np.isfinite(meas)
-    det = ok & np.isfinite(pred)
+    """(covered, judged, median bound / measured) over the rows with both figures. A bound the status says is not
+    determined (NaN) is neither a pass nor a miss: it claims nothing, and each cell prints how many there were beside
+    its coverage (a ring held level has no 30 deg figure without the field: ``observable``, Near-level rings)."""
+    det = np.isfinite(meas) & np.isfinite(pred)
     ratio = float(np.median(pred[det] / np.maximum(meas[det], 1e-9))) if det.any() else math.nan
-    return int(np.sum(pred[det] >= meas[det])), int(ok.sum()), ratio
+    return int(np.sum(pred[det] >= meas[det])), int(det.sum()), ratio
 
 
 def _cells(rows: list[dict[str, float]]) -> str:

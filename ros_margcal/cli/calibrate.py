@@ -58,6 +58,7 @@ from .fit_rescue import (
     Rescue,
     check,
     config_for,
+    figures_text,
     heading_text,
     inclination_of,
     reading_scale,
@@ -83,9 +84,9 @@ products over- or underflow."""
 
 CALIBRATE_OPTIONS = frozenset({"max_iter", "gate_window_s", "gate_cv_threshold", "max_residual", "max_offset_ratio",
                                "max_offset", "gain_min", "gain_max", "norm_min", "norm_max", "max_parameter_std",
-                               "max_heading_p95_deg", "drop_saturated"})
+                               "max_heading_p95_deg", "drop_saturated", "near_level_tilt_deg"})
 """The ``--set`` options calibrate uses: the fit's iterations, the accelerometer's gate, the guard rails, the rows on
-a saturated axis (``drop_saturated``)."""
+a saturated axis (``drop_saturated``), a magnetometer's ring held level (``near_level_tilt_deg``, as in the stream)."""
 
 
 def register(subparsers: Any) -> None:
@@ -355,10 +356,11 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _guarded_write(args: argparse.Namespace, cfg: PipelineConfig, cals: dict[str, Calibration],
-                   results: list[dict[str, Any]], noise: float = 0.0) -> int:
+                   results: list[dict[str, Any]], noise: float = 0.0, levels: dict[str, float] | None = None) -> int:
     """Write ``cals`` unless the guard rails refuse one (``EXIT_REFUSED``, nothing written); --force writes them
-    marked as forced."""
-    refused = {k: why for k, c in cals.items() if (why := refusal(c, cfg, noise))}
+    marked as forced. ``levels``: a calibration's level heading figure when not the one at the configured inclination."""
+    levels = levels or {}
+    refused = {k: why for k, c in cals.items() if (why := refusal(c, cfg, noise, levels.get(k)))}
     if refused and not args.force:
         for k, why in refused.items():
             print(f"margcal calibrate: {k}: refused by the guard rails: {why}", file=sys.stderr)
@@ -394,6 +396,7 @@ def _report_rescue(res: Rescue, args: argparse.Namespace, cfg: PipelineConfig, n
     if res.refused:
         return 3
     cals: dict[str, Calibration] = {}
+    levels: dict[str, float] = {}
     results = []
     key = cfg.sensor
     last = max((k for k, p in enumerate(res.parts) if p.calibration is not None), default=-1)
@@ -408,15 +411,25 @@ def _report_rescue(res: Rescue, args: argparse.Namespace, cfg: PipelineConfig, n
             print(f"  updated by the data: {', '.join(pf.updated) or 'none'}")
             print(f"  from the prior:      {', '.join(pf.from_prior) or 'none'}")
         if key == "mag":
-            text = heading_text(cal, inclination_of(cfg))
+            text = figures_text(part.figures) if part.figures is not None else heading_text(cal, inclination_of(cfg))
             if text:
                 print(f"  {text}")
         name = key if k == last else f"{key}_{k + 1}"  # the last calibration is the sensor's current one
         cals[name] = cal
         d = {**result_dict(cal, str(args.input), n_read), **extra}
+        if part.figures is not None:  # a near-level ring held level: its figures at its own field's inclination
+            f = part.figures
+            levels[name] = f.level_deg
+            d["near_level"] = {"heading_p95_level_deg": _finite(f.level_deg), "heading_p95_tilt30_deg": _finite(f.tilt30_deg),
+                               "inclination_deg": f.inclination_deg, "note": f.vertical_note}
         d["diagnosis"] = res.kind
         d["part"] = part.label
         if pf is not None:
             d["updated"], d["from_prior"] = list(pf.updated), list(pf.from_prior)
         results.append(d)
-    return _guarded_write(args, cfg, cals, results, noise)
+    return _guarded_write(args, cfg, cals, results, noise, levels)
+
+
+def _finite(x: float) -> float | None:
+    """``x`` for JSON: None when not determined (NaN or infinite)."""
+    return x if math.isfinite(x) else None

@@ -31,10 +31,12 @@ EXIT_REFUSED = 4
 _NO_STD_LIMIT = 10.0  # the largest max_parameter_std (FIELD_SPECS): a partial fit's prior terms are not judged by it
 
 
-def _heading(cal: Calibration, cfg: PipelineConfig) -> str:
-    """Why the predicted level heading error refuses ``cal`` ("" when within the limit or not computable)."""
+def _heading(cal: Calibration, cfg: PipelineConfig, level: float | None = None) -> str:
+    """Why the predicted level heading error (``level`` when given: a ring held level, at its own field's inclination)
+    refuses ``cal`` ("" when within the limit or not computable)."""
     try:
-        level = heading_p95_quantile(cal, tilt_deg=0.0, inclination=inclination_of(cfg))
+        if level is None:
+            level = heading_p95_quantile(cal, tilt_deg=0.0, inclination=inclination_of(cfg))
     except (InputError, ValueError, np.linalg.LinAlgError):
         return ""  # no covariance over the symmetric model (diag, eye, mvee): plausibility judged it
     if not (math.isfinite(level) and level <= HEADING_DETERMINED_DEG):
@@ -45,9 +47,10 @@ def _heading(cal: Calibration, cfg: PipelineConfig) -> str:
     return ""
 
 
-def refusal(cal: Calibration, cfg: PipelineConfig | None, noise: float = 0.0) -> str:
+def refusal(cal: Calibration, cfg: PipelineConfig | None, noise: float = 0.0, level: float | None = None) -> str:
     """Why the stream would not publish ``cal`` (module docstring), "" when it would; ``noise``: the sensor's white
-    noise in raw units (``stream.config.white_noise``), which widens the residual limit as in the stream.
+    noise in raw units (``stream.config.white_noise``), which widens the residual limit as in the stream; ``level``:
+    the predicted level heading p95 when it is not the one at the configured inclination (``fit_rescue.Part.figures``).
 
     A magnetometer's prior (MAP) fit is partial by design: as in the stream, its predicted heading error
     judges it, not the uncertainty of the terms it keeps from the prior.
@@ -67,7 +70,7 @@ def refusal(cal: Calibration, cfg: PipelineConfig | None, noise: float = 0.0) ->
     why = plausibility(cal, replace(cfg, max_parameter_std=_NO_STD_LIMIT) if partial else cfg)
     if why:
         return why
-    return _heading(cal, cfg) if cfg.sensor == "mag" else ""
+    return _heading(cal, cfg, level) if cfg.sensor == "mag" else ""
 
 
 def forced(cal: Calibration, why: str) -> Calibration:

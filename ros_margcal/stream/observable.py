@@ -43,7 +43,13 @@ refuse costs no norm-uncertainty fit and no heading figures.
 terms, and the level heading with it. Without a usable gyro the fit then holds the ring's plane level
 (``fit_with_prior(level=True)``, ``model.fitting_level``: the sensor's z axis vertical on average), from every
 default start, with a wider norm prior (``NEAR_LEVEL_NORM_REL_STD``); the status says so. The level figure is
-then the data's (with the assumption's floor), the ±30° one the prior's (large). A sensor mounted tilted on
+then the data's (with the assumption's floor: it is computed at the readings' own vertical, which the fit
+reproduces whatever its offset along the ring's axis), the ±30° ones not determined: held level, that offset comes
+from the norm's prior and the readings' small wobble, which a mounting wobble or a field that changes along the path
+makes as well as a tilt does (a real robot's spins in place, an LSM303DLHC, two recordings of one robot fitted by the
+stream and by ``margcal calibrate``, read -46, -24, -11 and -9 deg of inclination, each fit's offset along the axis
+2-3 uT in sd, the fits 20 uT apart; -46 deg came with a 30 deg bound of 16 deg, -24 with 7.6), unless the field is
+given (``reference_norm``, a position's model field). A sensor mounted tilted on
 the vehicle is calibrated in the vehicle's level frame, which no magnetometer can tell from its own (3.5 deg of
 roll: 5-8 deg of heading at level on the independent generator's car): ``near_level_tilt_deg`` 0 turns the
 assumption off for such a mount, and a gyro in the magnetometer's frame makes it unnecessary.
@@ -121,7 +127,7 @@ from .config import PipelineConfig, apart, guard_rails, readings_for, relative_s
 __all__ = ["AZIMUTH_SECTORS", "DEFAULT_INCLINATION_DEG", "NEAR_LEVEL_NORM_REL_STD", "NEAR_LEVEL_TILT_DEG", "RING_AXIS_MAX_DEG",
            "RING_FLAT", "SIGMA_REUSE_TOLERANCE", "HeadingFigures", "PartialResult", "azimuth_coverage", "azimuth_sector",
            "azimuth_sectors", "heading_figures", "partial_fit", "partial_fit_steps", "regions_seen", "ring_centre",
-           "ring_tilt_deg", "sphere_radius", "tilt_seen_deg"]
+           "ring_figures", "ring_tilt_deg", "sphere_radius", "tilt_seen_deg"]
 
 Array = NDArray[np.float64]
 
@@ -384,12 +390,29 @@ def _figures(cal: Calibration, inc: float, vertical_note: str = "") -> HeadingFi
     return HeadingFigures(inc, cal, vertical_note)
 
 
-def _vertical_note(cfg: PipelineConfig, inc: float, gyro_used: bool) -> str:
-    """Why a ring's ±30° figures are not determined (``HORIZONTAL_FIELD_DEG``), or ""."""
-    if cfg.reference_norm or cfg.heading_inclination_deg is not None or gyro_used or not abs(inc) < HORIZONTAL_FIELD_DEG:
+def _vertical_note(cfg: PipelineConfig, inc: float, gyro_used: bool, held: bool = False) -> str:
+    """Why a ring's ±30° figures are not determined (``HORIZONTAL_FIELD_DEG``; ``held``: its plane held level,
+    module docstring, **Near-level rings**), or ""."""
+    if cfg.reference_norm or cfg.heading_inclination_deg is not None or gyro_used:
+        return ""
+    if held:
+        return (f"the ring held level, the field's vertical ({inc:.3g} deg inclination) is the norm prior's, which a flat "
+                "ring cannot tell from a field that changes along the path: the 30 deg figures are not determined; give "
+                "the field (--lat/--lon, reference_norm)")
+    if not abs(inc) < HORIZONTAL_FIELD_DEG:
         return ""
     return (f"the fit puts the field {inc:.3g} deg from horizontal, which a flat ring cannot tell from a field that "
             "changes along the path: the 30 deg figures are not determined; give the field (--lat/--lon, reference_norm)")
+
+
+def ring_figures(cal: Calibration, raw: Array, cfg: PipelineConfig, sigma: float = math.nan) -> HeadingFigures:
+    """The heading figures of a ring's fit as ``partial_fit_steps`` makes them without a gyro: at the inclination its
+    readings ``raw`` show when their tilt seen allows (``INFER_INCLINATION_MAX_TILT_DEG``), with the offset part of
+    slow noise of residual noise ``sigma`` (``with_offset_noise``), the ±30° ones not determined for a field fitted
+    near horizontal (``HORIZONTAL_FIELD_DEG``). For ``margcal calibrate``'s fit of a near-level ring held level."""
+    inc = _inclination(cfg, cal, raw if tilt_seen_deg(cal, raw) <= INFER_INCLINATION_MAX_TILT_DEG else None)
+    bounded = with_offset_noise(cal, sigma) if math.isfinite(sigma) and sigma >= 0 else cal
+    return _figures(bounded, inc, _vertical_note(cfg, inc, gyro_used=False, held=True))
 
 
 def _own_frame(cal: Calibration) -> Calibration:
@@ -542,7 +565,7 @@ def partial_fit_steps(series: Array, prior: Calibration | None, cfg: PipelineCon
         sigma = pf.residual_sigma
         # slow noise longer than the series, which the offset absorbs and no residual shows (model.heading)
         bounded = with_offset_noise(cal, sigma) if sigma is not None and math.isfinite(sigma) and sigma >= 0 else cal
-        figs = _figures(bounded, inc, "" if rich else _vertical_note(cfg, inc, pf.gyro_used))
+        figs = _figures(bounded, inc, "" if rich else _vertical_note(cfg, inc, pf.gyro_used, held=pf.level))
         seen = figs.tilt30_deg if rich else heading_p95_quantile(bounded, tilt_deg=tilt, inclination=inc)
         like = seen  # the refit's figure at the tilt the current calibration was judged at (like with like)
         if (not rich and current_heading is not None and current_tilt is not None and tilt > current_tilt
