@@ -171,7 +171,10 @@ deg from the whole recording's, and the stream's fit of them, published at 2.5 d
 the independent generator's tumbles fill 7-8 regions when their bound first reaches 2.5 deg (``regions_seen``).
 A fit whose directions fill this many is also rich motion, whatever its tilt seen: a ring or band fills 4 (the
 independent generator's ground robots, bands and car), and a tumble whose tilt seen stayed at 45 deg was refused as a
-ring that had turned through 72 % of the azimuths while it filled 7-9 regions."""
+ring that had turned through 72 % of the azimuths while it filled 7-9 regions. A ring tilted at most
+``INFER_INCLINATION_MAX_TILT_DEG`` is not, however many it crosses: a level circle of directions crosses 8 of them at 30
+deg of elevation (a ground robot near the magnetic equator: its refits were refused as "not a ring or band"), and a
+ring held level whose fit put the field at -46 deg crossed 8 too."""
 REGION_MIN_POINTS = 3
 """Fewest points for ``regions_seen`` to count a region as seen (one stray point is no coverage)."""
 
@@ -538,9 +541,10 @@ def partial_fit_steps(series: Array, prior: Calibration | None, cfg: PipelineCon
             return PartialResult(cal, pf.updated, pf.from_prior, kind, math.nan, math.inf, None,
                                  _poses_note(cal, pf.updated, sensor, cfg.max_parameter_std), sigma=pf.residual_sigma)
         tilt = tilt_seen_deg(cal, series)
-        # a ring or band fills 4 of the 12 regions, a tumble's first seconds 7 and more however far its tilt goes
+        # a ring or band fills 4 of the 12 regions at 60 deg of inclination, a tumble's first seconds 7 and more however
+        # far its tilt goes; a ring (tilted at most INFER_INCLINATION_MAX_TILT_DEG) is never rich (RICH_REGIONS)
         regions = regions_seen(cal, series)
-        rich = not tilt <= cfg.partial_max_tilt_deg or regions >= RICH_REGIONS
+        rich = not tilt <= cfg.partial_max_tilt_deg or (regions >= RICH_REGIONS and tilt > INFER_INCLINATION_MAX_TILT_DEG)
         # the cheap verdicts first: a fit they refuse needs no norm uncertainty and no heading figures
         if rich and not (cfg.early_fit and (current is None or early)):
             shown, limit = apart(tilt, cfg.partial_max_tilt_deg)
