@@ -42,7 +42,7 @@ from typing import Any
 
 import numpy as np
 from study_ground_robot import independent_generator  # scripts/ is on the path when a script in it runs
-from study_real_recordings import DATA, batch_stretches, heading_p95_against, units
+from study_real_recordings import DATA, batch_parts, heading_p95_against, units
 
 from ros_margcal.cli.calibrate_guard import refusal
 from ros_margcal.cli.fit_rescue import config_for
@@ -210,12 +210,14 @@ def real(data: Path) -> None:
     every: list[dict[str, float]] = []
     for name in names:
         path, unit = data / name, known[name]
-        stretches, note = batch_stretches(path, "mag", unit)
+        parts, note = batch_parts(path, "mag", unit)
+        stretches = [p.calibration for p in parts if p.calibration is not None]
         rows: list[dict[str, float]] = []
         if stretches:
             rec = read_recording(path, sensor="mag", order="file")
             noise = white_noise(np.asarray(rec.raw, dtype=np.float64))  # as margcal calibrate's guard rails
-            written = [not refusal(c, config_for("mag", unit), noise) for c in stretches]
+            written = [not refusal(p.calibration, config_for("mag", unit), noise,  # a ring held level: its own figure
+                                   None if p.figures is None else p.figures.level_deg) for p in parts]
             note += ", each against its stretch's" if len(stretches) > 1 else ""
             note += f"; {written.count(False)} refused by margcal calibrate" if not all(written) else ""
 

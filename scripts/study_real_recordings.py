@@ -41,7 +41,7 @@ import yaml
 
 from ros_margcal.cli.calibrate import still_samples
 from ros_margcal.cli.calibrate_guard import refusal
-from ros_margcal.cli.fit_rescue import check, config_for, rescue, residual_note, rests_apart
+from ros_margcal.cli.fit_rescue import Part, check, config_for, rescue, residual_note, rests_apart
 from ros_margcal.model.calibration import Calibration
 from ros_margcal.model.errors import ConvergenceError, DegenerateDataError, RecordingError
 from ros_margcal.model.fitting import fit
@@ -108,6 +108,13 @@ def batch(path: Path, sensor: str, unit: str) -> tuple[Calibration | None, str]:
 def batch_stretches(path: Path, sensor: str, unit: str) -> tuple[list[Calibration], str]:
     """The batch fits as ``margcal calibrate`` makes them, in time order (one unless the offset changed in the
     recording; each stamped with the end of its stretch), and a note (the diagnosis when it needed one)."""
+    parts, note = batch_parts(path, sensor, unit)
+    return [p.calibration for p in parts if p.calibration is not None], note
+
+
+def batch_parts(path: Path, sensor: str, unit: str) -> tuple[list[Part], str]:
+    """``batch_stretches`` as ``fit_rescue.Part``s: a near-level ring held level carries the figures ``margcal
+    calibrate`` judges it by (``Part.figures``: its level figure at its own field's inclination)."""
     rec = read_recording(path, sensor=sensor)
     try:
         pts = still_samples(rec) if sensor == "accel" else np.asarray(rec.raw, dtype=np.float64)
@@ -125,13 +132,13 @@ def batch_stretches(path: Path, sensor: str, unit: str) -> tuple[list[Calibratio
             apart = rests_apart(np.asarray(rec.t, dtype=np.float64), pts, model="sym", norm=None, loss="linear",
                                 sensor=sensor, unit=unit, cfg=cfg, noise=noise)
             if apart is not None:
-                return [apart[0]], "lm, a rest in another field left out"
-        return [cal], "lm"
+                return [Part("lm", apart[0], len(pts))], "lm, a rest in another field left out"
+        return [Part("lm", cal, len(pts))], "lm"
     res = rescue(None if sensor == "accel" else np.asarray(rec.t, dtype=np.float64), pts, failure=why or high,
                  model="sym", norm=None, loss="linear", sensor=sensor, unit=unit, cfg=cfg, change_only=not why,
                  noise=noise)
     if res is None:
-        return ([cal] if cal is not None else []), f"lm, warning: {high.split(':')[0]}"
+        return ([Part("lm", cal, len(pts))] if cal is not None else []), f"lm, warning: {high.split(':')[0]}"
     fitted = [p for p in res.parts if p.calibration is not None]
     if not fitted:
         return [], f"{res.kind}: refused"
@@ -139,7 +146,7 @@ def batch_stretches(path: Path, sensor: str, unit: str) -> tuple[list[Calibratio
     note = f"{res.kind}: {len(fitted)} calibrations" if res.kind == "change" else res.kind
     if last.prior_fit is not None and last.prior_fit.from_prior:
         note += f" (from prior: {', '.join(last.prior_fit.from_prior)})"
-    return [p.calibration for p in fitted if p.calibration is not None], note
+    return fitted, note
 
 
 def study(path: Path, unit: str) -> dict[str, object]:
