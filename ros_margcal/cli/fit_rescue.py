@@ -538,7 +538,7 @@ def inclination_of(cfg: PipelineConfig | None) -> float:
 
 def figures_text(figs: HeadingFigures) -> str:
     """``heading_text`` of a near-level ring's fit held level (``Part.figures``): at its own field's inclination, the
-    ±30° figures not determined (and why) when that field lies near horizontal."""
+    ±30° figures not determined (and why) unless the field is given (``observable.ring_figures``)."""
     why = f" ({figs.vertical_note})" if figs.vertical_note else ""
     return (f"predicted heading error p95: {format_bound(figs.level_deg)} level, {format_bound(figs.tilt30_deg)} at 30 "
             f"deg tilt (95 % bound; typical {format_bound(figs.level_typical_deg)} / "
