@@ -308,6 +308,13 @@ UNHELD_TILT_FACTOR = 2.0
 thick, ``near_level_tilt_deg`` 2.5, read as 24 deg of tilt and 84 deg of heading error)."""
 
 
+STEEP_FIELD_DEG = 65.0
+"""A ring's fit refused on its heading figure, without the gyro, where its field dips at least this much says that a
+gyro would help: the horizontal field is weak there and a tilt leaks ``tan(inclination)`` times its size into the
+heading (the independent generator's ±5 deg ground robot, seeds 3-4: first calibration at 65 deg 76-87 s, at 70 deg
+294 s or none in 300 s, at 75 deg none; with its gyro 24-50 s at all three, worst level 0.3-0.8 deg)."""
+
+
 HORIZONTAL_FIELD_DEG = 15.0
 """A ring's fit, without a given field (``reference_norm``, ``heading_inclination_deg``) or the gyro, that puts the
 field within this many degrees of horizontal (the inclination inferred from its own data) has its ±30° figures not
@@ -599,6 +606,10 @@ def partial_fit_steps(series: Array, prior: Calibration | None, cfg: PipelineCon
             reason += (f" (the readings leave their ring's plane by {thick:.1f} deg, this fit tilts it {tilt:.1f} deg: "
                        f"the vertical is not determined; a ring flatter than mag.near_level_tilt_deg = "
                        f"{cfg.near_level_tilt_deg:g} deg is held level, a field disturbed along the path thickens it)")
+        elif not rich and not pf.level and not pf.gyro_used and abs(inc) >= STEEP_FIELD_DEG:
+            reason += (f" (the field dips {abs(inc):.0f} deg: a tilt weighs {math.tan(math.radians(abs(inc))):.1f}x its "
+                       "size in the heading, and the ring's own tilts must fix the vertical terms; with the Imu's rates "
+                       "such a ring calibrates sooner)")
     elif current_heading is not None and not like < current_heading:
         at = "" if like is seen else f" ({format_bound(like)} at its {current_tilt:.1f} deg of tilt)"
         reason = (f"partial refit: predicted heading error p95 {format_bound(seen)}{at} not below the current "

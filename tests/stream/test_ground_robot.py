@@ -142,6 +142,25 @@ def test_a_ring_near_the_magnetic_equator_is_a_ring(seed: int) -> None:
     assert GEN.heading_p95(c.matrix, c.offset, rec["truth"], 0.0) <= st.heading_p95_level_deg
 
 
+def test_a_ring_where_the_field_dips_steeply_says_a_gyro_would_help() -> None:
+    """At 72 deg of inclination a +-5 deg ground robot without the gyro is refused for minutes (its tilts leak 3x into
+    the heading): the refusal says why and that the Imu's rates help; with them it calibrates within a minute
+    (``observable.STEEP_FIELD_DEG``)."""
+    rec = GEN.generate("mag", "ground", duration_s=120.0, rate_hz=40.0, seed=3, tilt_deg=5.0, inclination_deg=72.0,
+                       symmetric_soft_iron=True, hard_iron_mag=30e-6, gyro_scale=0.03)
+    alone = SensorCalibrator("mag")
+    assert not _feed(alone, rec)
+    assert "the field dips 71 deg" in alone.status().message or "the field dips 72 deg" in alone.status().message
+    assert "with the Imu's rates such a ring calibrates sooner" in alone.status().message
+    aided = SensorCalibrator("mag")
+    events = [e for t, v, g in zip(rec["t"].tolist(), rec["xyz"].tolist(), rec["gyro"].tolist(), strict=True)
+              for e in aided.push(t, v, g) if e.kind is EventKind.CALIBRATED]
+    assert events and events[0].t <= 60.0, aided.status().message
+    assert "the field dips" not in aided.status().message
+    c = aided.calibration
+    assert GEN.heading_p95(c.matrix, c.offset, rec["truth"], 0.0) <= 1.0
+
+
 def test_a_bands_heading_figures_take_the_default_inclination() -> None:
     """A ±20 deg band tilts too much for "z up on average": its mean vertical share reads the field 44-58 deg
     (bench seeds 900-904; 60 deg true); its figures take 60 deg and say so."""
