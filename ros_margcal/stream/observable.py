@@ -43,8 +43,8 @@ refuse costs no norm-uncertainty fit and no heading figures.
 terms, and the level heading with it. Without a usable gyro the fit then holds the ring's plane level
 (``fit_with_prior(level=True)``, ``model.fitting_level``: the sensor's z axis vertical on average), from every
 default start, with a wider norm prior (``NEAR_LEVEL_NORM_REL_STD``); the status says so. The level figure is
-then the data's (with the assumption's floor: it is computed at the readings' own vertical, which the fit
-reproduces whatever its offset along the ring's axis), the ±30° ones not determined: held level, that offset comes
+then the data's (with the assumption's floor, weighed with the fitted vertical field), the ±30° ones not
+determined: held level, the offset along the ring's axis comes
 from the norm's prior and the readings' small wobble, which a mounting wobble or a field that changes along the path
 makes as well as a tilt does (a real robot's spins in place, an LSM303DLHC, two recordings of one robot fitted by the
 stream and by ``margcal calibrate``, read -46, -24, -11 and -9 deg of inclination, each fit's offset along the axis
