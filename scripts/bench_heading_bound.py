@@ -210,8 +210,8 @@ def real(data: Path) -> None:
     every: list[dict[str, float]] = []
     for name in names:
         path, unit = data / name, known[name]
-        parts, note = batch_parts(path, "mag", unit)
-        stretches = [p.calibration for p in parts if p.calibration is not None]
+        parts, note = batch_parts(path, "mag", unit)  # each with its calibration
+        stretches = [p.calibration for p in parts]
         rows: list[dict[str, float]] = []
         if stretches:
             rec = read_recording(path, sensor="mag", order="file")

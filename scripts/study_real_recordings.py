@@ -113,8 +113,8 @@ def batch_stretches(path: Path, sensor: str, unit: str) -> tuple[list[Calibratio
 
 
 def batch_parts(path: Path, sensor: str, unit: str) -> tuple[list[Part], str]:
-    """``batch_stretches`` as ``fit_rescue.Part``s: a near-level ring held level carries the figures ``margcal
-    calibrate`` judges it by (``Part.figures``: its level figure at its own field's inclination)."""
+    """``batch_stretches`` as ``fit_rescue.Part``s, each with its calibration: a near-level ring held level carries the
+    figures ``margcal calibrate`` judges it by (``Part.figures``: its level figure at its own field's inclination)."""
     rec = read_recording(path, sensor=sensor)
     try:
         pts = still_samples(rec) if sensor == "accel" else np.asarray(rec.raw, dtype=np.float64)

@@ -53,8 +53,8 @@ from .fitting_core import mad_sigma, unpack
 
 __all__ = ["FRAME_BETTER", "GYRO_BIAS_STD", "GYRO_SCALE_STD", "MIN_EXPLAINED", "NAMED_MIN_SHARE",
            "SIGNED_PERMUTATIONS", "UNIT_ERRORS", "UNIT_NAMES", "GyroBlocks", "GyroTerm", "axial", "explained",
-           "frame_advice", "frame_check", "frame_name", "frame_shares", "gyro_blocks", "gyro_residuals", "rotated_blocks",
-           "skew", "turning_share"]
+           "frame_advice", "frame_check", "frame_name", "frame_shares", "gyro_blocks", "gyro_residuals", "named_better",
+           "rotated_blocks", "skew", "turning_share"]
 
 Array = NDArray[np.float64]
 
@@ -308,9 +308,15 @@ def frame_check(blocks: GyroBlocks, offset: ArrayLike, matrix: ArrayLike) -> tup
     if not np.isfinite(shares).any():
         return "", float("nan"), own
     k = int(np.nanargmax(shares))
-    if k == 0 or not (1.0 - shares[k]) <= FRAME_BETTER * (1.0 - own) or not shares[k] >= NAMED_MIN_SHARE:
+    if k == 0 or not named_better(shares[k], own):
         return "", float("nan"), own
     return _CHECKED_NAMES[k], shares[k], own
+
+
+def named_better(share: float, own: float) -> bool:
+    """Is another frame or unit that explains ``share`` of the turning worth naming against the rates' own ``own``:
+    at most ``FRAME_BETTER`` of the own frame's unexplained share left, and at least ``NAMED_MIN_SHARE`` explained."""
+    return (1.0 - share) <= FRAME_BETTER * (1.0 - own) and share >= NAMED_MIN_SHARE
 
 
 def frame_advice(name: str) -> str:

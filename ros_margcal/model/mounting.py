@@ -56,7 +56,6 @@ from .fitting_gyro import (
     GYRO_BIAS_STD,
     GYRO_SCALE_STD,
     MIN_EXPLAINED,
-    NAMED_MIN_SHARE,
     SIGNED_PERMUTATIONS,
     UNIT_ERRORS,
     GyroBlocks,
@@ -65,6 +64,7 @@ from .fitting_gyro import (
     frame_advice,
     frame_shares,
     gyro_residuals,
+    named_better,
     rotated_blocks,
     skew,
     turning_share,
@@ -397,7 +397,7 @@ def _none_fits(blocks: GyroBlocks, b: Array, w: Array, share: float) -> str:
     if not np.isfinite(shares).any():
         return why
     k = int(np.nanargmax(shares))
-    if not (shares[k] >= NAMED_MIN_SHARE and (1.0 - shares[k]) <= FRAME_BETTER * (1.0 - share)):
+    if not named_better(shares[k], share):
         return why
     name, r = cands[k]
     return f"{why}; {100 * shares[k]:.0f} % under {rotation_name(r)}, {frame_advice(name)}"

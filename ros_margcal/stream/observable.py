@@ -201,8 +201,9 @@ class HeadingFigures:
     inclination_deg: float
     calibration: Calibration
     vertical_note: str = ""
-    """Non-empty when the fit's vertical is not the Earth's (``HORIZONTAL_FIELD_DEG``): the ±30° figures are then not
-    determined, and this says why."""
+    """Non-empty when a ring fit's vertical is not the data's (held level, or fitted within ``HORIZONTAL_FIELD_DEG`` of
+    horizontal, without the field given: ``_vertical_note``): the ±30° figures are then not determined, and this says
+    why."""
 
     @cached_property
     def level_deg(self) -> float:
@@ -419,14 +420,21 @@ def _vertical_note(cfg: PipelineConfig, inc: float, gyro_used: bool, held: bool 
             "changes along the path: the 30 deg figures are not determined; give the field (--lat/--lon, reference_norm)")
 
 
+def _fit_figures(cal: Calibration, raw: Array, cfg: PipelineConfig, sigma: float | None, tilt: float, *, rich: bool,
+                 gyro_used: bool, held: bool) -> HeadingFigures:
+    """A partial fit's heading figures: at the inclination its readings ``raw`` show when it is a ring tilted at most
+    ``INFER_INCLINATION_MAX_TILT_DEG`` ("z up on average"; else the default or the given one), with the offset part of
+    slow noise of residual noise ``sigma`` (``with_offset_noise``: longer than the series, the offset absorbs it and no
+    residual shows it), a ring's ±30° ones not determined when its vertical is not the data's (``_vertical_note``)."""
+    inc = _inclination(cfg, cal, None if rich or not tilt <= INFER_INCLINATION_MAX_TILT_DEG else raw)
+    bounded = with_offset_noise(cal, sigma) if sigma is not None and math.isfinite(sigma) and sigma >= 0 else cal
+    return _figures(bounded, inc, "" if rich else _vertical_note(cfg, inc, gyro_used, held=held))
+
+
 def ring_figures(cal: Calibration, raw: Array, cfg: PipelineConfig, sigma: float = math.nan) -> HeadingFigures:
-    """The heading figures of a ring's fit as ``partial_fit_steps`` makes them without a gyro: at the inclination its
-    readings ``raw`` show when their tilt seen allows (``INFER_INCLINATION_MAX_TILT_DEG``), with the offset part of
-    slow noise of residual noise ``sigma`` (``with_offset_noise``), the ±30° ones not determined unless the field is
-    given (held level: module docstring, **Near-level rings**). For ``margcal calibrate``'s fit of a ring held level."""
-    inc = _inclination(cfg, cal, raw if tilt_seen_deg(cal, raw) <= INFER_INCLINATION_MAX_TILT_DEG else None)
-    bounded = with_offset_noise(cal, sigma) if math.isfinite(sigma) and sigma >= 0 else cal
-    return _figures(bounded, inc, _vertical_note(cfg, inc, gyro_used=False, held=True))
+    """The heading figures of a ring's fit held level without a gyro, as ``partial_fit_steps`` makes them
+    (``_fit_figures``): for ``margcal calibrate``'s fit of a near-level ring."""
+    return _fit_figures(cal, raw, cfg, sigma, tilt_seen_deg(cal, raw), rich=False, gyro_used=False, held=True)
 
 
 def _own_frame(cal: Calibration) -> Calibration:
@@ -575,12 +583,8 @@ def partial_fit_steps(series: Array, prior: Calibration | None, cfg: PipelineCon
                                  gyro_used=pf.gyro_used, gyro_frame=pf.gyro_frame,
                                  gyro_frame_shares=pf.gyro_frame_shares, level=pf.level)
         yield  # the heading figures next
-        # "z up on average" holds for a ring, not a tumble or a band (INFER_INCLINATION_MAX_TILT_DEG)
-        inc = _inclination(cfg, cal, None if rich or not tilt <= INFER_INCLINATION_MAX_TILT_DEG else series)
-        sigma = pf.residual_sigma
-        # slow noise longer than the series, which the offset absorbs and no residual shows (model.heading)
-        bounded = with_offset_noise(cal, sigma) if sigma is not None and math.isfinite(sigma) and sigma >= 0 else cal
-        figs = _figures(bounded, inc, "" if rich else _vertical_note(cfg, inc, pf.gyro_used, held=pf.level))
+        figs = _fit_figures(cal, series, cfg, pf.residual_sigma, tilt, rich=rich, gyro_used=pf.gyro_used, held=pf.level)
+        bounded, inc = figs.calibration, figs.inclination_deg
         seen = figs.tilt30_deg if rich else heading_p95_quantile(bounded, tilt_deg=tilt, inclination=inc)
         like = seen  # the refit's figure at the tilt the current calibration was judged at (like with like)
         if (not rich and current_heading is not None and current_tilt is not None and tilt > current_tilt
