@@ -209,6 +209,14 @@ class Intake:
                 self.gyro_ignored += 1
         return got[0], got[1], g
 
+    def gyro_note(self) -> str:
+        """What a status says of the gyro rates ignored ("" when none): a count of ignored rates alone left a gyro given in
+        raw counts unexplained (every rate of a real log ignored, the status silent)."""
+        if not self.gyro_ignored:
+            return ""
+        return (f"{self.gyro_ignored} of {self.taken} samples' gyro rates ignored (not finite, or above {MAX_GYRO_RAD_S:g} "
+                "rad/s: give the rates in rad/s; raw counts need the gyro's scale)")
+
     def _check(self, t: Any, xyz: Any) -> str | tuple[float, Vec3]:
         v = _vector3(xyz)
         if v is None:

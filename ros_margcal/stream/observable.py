@@ -36,7 +36,11 @@ about the body z axis (the calibrated field visits at least ``partial_min_azimut
 sectors, 90 % by default, counted about the centre of the ring it traces, ``ring_centre``: a fit whose offset
 misses that centre still sees the turns the field made): the heading figures assume z up, and a cap about another axis (a sensor
 waved about one pose) would be judged at the wrong attitudes. These cheap checks come first: a fit they
-refuse costs no norm-uncertainty fit and no heading figures.
+refuse costs no norm-uncertainty fit and no heading figures. An early fit (the recent samples, before the
+series is long enough) tilted past a ring's (``INFER_INCLINATION_MAX_TILT_DEG``) that fails the azimuths is judged as
+rich motion's instead, at ±30° on ``early_heading_p95_deg``: a tumble's first seconds turn about no one axis, and the
+azimuth rule held their fits back to 7.5-10 s where the 30° figure passed at 4-6 s (``scripts/bench_speed.py``). The
+series fits keep the rule: its refusal starts the azimuth watch a ring's next fit waits on (``partial._az_watch``).
 
 **Near-level rings.** A ring whose raw readings leave its plane by at most ``near_level_tilt_deg``
 (``ring_tilt_deg``: a car, a robot on a floor) leaves the tilt of the calibrated frame to the prior's cross
@@ -575,6 +579,13 @@ def partial_fit_steps(series: Array, prior: Calibration | None, cfg: PipelineCon
                                  gyro_frame_shares=pf.gyro_frame_shares,
                                  level=pf.level)
         azimuth = azimuth_coverage(cal, series)
+        # an early fit tilted past a ring's but turned through too few azimuths for a band (a tumble's first seconds):
+        # judged as rich motion's, at 30 deg (module docstring, **Decision**)
+        arc = ""
+        if (not rich and not azimuth >= cfg.partial_min_azimuth and early and cfg.early_fit
+                and tilt > INFER_INCLINATION_MAX_TILT_DEG):
+            rich, arc = True, (f"the field turned through {100 * azimuth:.0f} % of the azimuths about the body z axis < "
+                               f"{100 * cfg.partial_min_azimuth:.0f} % (not a ground robot's turns), judged as rich motion: ")
         if not rich and not azimuth >= cfg.partial_min_azimuth:
             return PartialResult(cal, pf.updated, pf.from_prior, kind, tilt, math.inf, None,
                                  f"partial fit: the field turned through {100 * azimuth:.0f} % of the azimuths about the "
@@ -603,8 +614,9 @@ def partial_fit_steps(series: Array, prior: Calibration | None, cfg: PipelineCon
                   "the rest: they are not of the same sensor (a change the detector has not declared yet?)")
     elif not seen <= limit:
         where = f"at 30 deg tilt{part}" if rich else f"at the tilt seen ({tilt:.1f} deg)"
-        reason = (f"partial fit: predicted heading error p95 {where} {format_bound(seen)} > {limit:g} deg" if math.isfinite(seen)
-                  else f"partial fit: predicted heading error {where} not determined (no finite covariance)")
+        reason = (f"partial fit: {arc}predicted heading error p95 {where} {format_bound(seen)} > {limit:g} deg"
+                  if math.isfinite(seen) else f"partial fit: {arc}predicted heading error {where} not determined (no finite "
+                  "covariance)")
         over = limit
         if not rich and level_ok and cfg.near_level_tilt_deg < thick < tilt / UNHELD_TILT_FACTOR:
             reason += (f" (the readings leave their ring's plane by {thick:.1f} deg, this fit tilts it {tilt:.1f} deg: "

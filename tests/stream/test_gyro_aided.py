@@ -95,6 +95,7 @@ def test_bad_rates_are_ignored_and_counted_never_the_samples(ring: dict[str, Any
     st = cal.status()
     bad = int(np.sum(~np.isfinite(rates).all(axis=1) | (np.linalg.norm(np.nan_to_num(rates, nan=0.0), axis=1) > 100)))
     assert st.gyro_ignored == bad and st.samples_passed == alone[0].status().samples_passed
+    assert f"{bad} of {st.samples_seen} samples' gyro rates ignored" in st.message, st.message
     assert events and st.gyro_explained is not None and st.gyro_explained > 0.99  # the blocks without a gap remain
 
 
@@ -218,3 +219,14 @@ def test_a_gyro_that_explains_most_of_a_disturbed_ring_is_not_asked_about_its_fr
     assert st.gyro_explained is not None and 0.7 <= st.gyro_explained < 0.9, st.message
     assert "gyro not used" in st.message and "a field that changes along the path" in st.message, st.message
     assert "are the IMU and magnetometer in one frame" not in st.message
+
+
+def test_rates_in_raw_counts_are_named_in_the_status(ring: dict[str, Any]) -> None:
+    """A real log's gyro columns in raw counts (mgiurato/IMU-Calibration: a static bias of ~500 counts): every rate is
+    above any gyro's range and ignored; the status says so and why, not only the count in its values."""
+    cal = SensorCalibrator("mag")
+    _feed(cal, ring, ring["gyro"] / 1e-3 + 500.0)  # 1 mrad/s a count, a bias of 500 counts
+    st = cal.status()
+    assert st.gyro_ignored == len(ring["t"]), st.gyro_ignored
+    assert "gyro rates ignored" in st.message and "raw counts need the gyro's scale" in st.message, st.message
+    assert "gyro rates ignored" not in SensorCalibrator("mag").status().message
