@@ -37,10 +37,12 @@ sectors, 90 % by default, counted about the centre of the ring it traces, ``ring
 misses that centre still sees the turns the field made): the heading figures assume z up, and a cap about another axis (a sensor
 waved about one pose) would be judged at the wrong attitudes. These cheap checks come first: a fit they
 refuse costs no norm-uncertainty fit and no heading figures. An early fit (the recent samples, before the
-series is long enough) tilted past a ring's (``INFER_INCLINATION_MAX_TILT_DEG``) that fails the azimuths is judged as
-rich motion's instead, at ±30° on ``early_heading_p95_deg``: a tumble's first seconds turn about no one axis, and the
-azimuth rule held their fits back to 7.5-10 s where the 30° figure passed at 4-6 s (``scripts/bench_speed.py``). The
-series fits keep the rule: its refusal starts the azimuth watch a ring's next fit waits on (``partial._az_watch``).
+series is long enough) of readings that turned (``config.STATIC_SPREAD``) tilted past a ring's
+(``INFER_INCLINATION_MAX_TILT_DEG``) that fails the azimuths is judged as rich motion's instead, at ±30° on
+``early_heading_p95_deg``: a tumble's first seconds turn about no one axis, and the azimuth rule held their fits back
+to 7.5-10 s where the 30° figure passed at 4-6 s (``scripts/bench_speed.py``). Readings at rest (a car's first
+seconds, parked) keep the rule, and so do the series fits: its refusal sets how long the next fit waits
+(``partial._partial_close``) and starts the azimuth watch a ring's next fit waits on (``partial._az_watch``).
 
 **Near-level rings.** A ring whose raw readings leave its plane by at most ``near_level_tilt_deg``
 (``ring_tilt_deg``: a car, a robot on a floor) leaves the tilt of the calibrated frame to the prior's cross
@@ -130,7 +132,7 @@ from ..model.heading import (
 )
 from ..model.mounting import Mounting
 from ..model.steps import Steps, drained
-from .config import PipelineConfig, apart, guard_rails, readings_for, relative_std, rms_relative
+from .config import STATIC_SPREAD, PipelineConfig, apart, guard_rails, readings_for, relative_spread, relative_std, rms_relative
 
 __all__ = ["AZIMUTH_SECTORS", "DEFAULT_INCLINATION_DEG", "NEAR_LEVEL_NORM_REL_STD", "NEAR_LEVEL_TILT_DEG", "RING_AXIS_MAX_DEG",
            "RING_FLAT", "SIGMA_REUSE_TOLERANCE", "HeadingFigures", "PartialResult", "azimuth_coverage", "azimuth_sector",
@@ -579,11 +581,11 @@ def partial_fit_steps(series: Array, prior: Calibration | None, cfg: PipelineCon
                                  gyro_frame_shares=pf.gyro_frame_shares,
                                  level=pf.level)
         azimuth = azimuth_coverage(cal, series)
-        # an early fit tilted past a ring's but turned through too few azimuths for a band (a tumble's first seconds):
-        # judged as rich motion's, at 30 deg (module docstring, **Decision**)
+        # an early fit of turning readings, tilted past a ring's but turned through too few azimuths for a band (a
+        # tumble's first seconds): judged as rich motion's, at 30 deg (module docstring, **Decision**)
         arc = ""
         if (not rich and not azimuth >= cfg.partial_min_azimuth and early and cfg.early_fit
-                and tilt > INFER_INCLINATION_MAX_TILT_DEG):
+                and tilt > INFER_INCLINATION_MAX_TILT_DEG and relative_spread(np.asarray(series)[:, :3]) >= STATIC_SPREAD):
             rich, arc = True, (f"the field turned through {100 * azimuth:.0f} % of the azimuths about the body z axis < "
                                f"{100 * cfg.partial_min_azimuth:.0f} % (not a ground robot's turns), judged as rich motion: ")
         if not rich and not azimuth >= cfg.partial_min_azimuth:
