@@ -37,11 +37,12 @@ sectors, 90 % by default, counted about the centre of the ring it traces, ``ring
 misses that centre still sees the turns the field made): the heading figures assume z up, and a cap about another axis (a sensor
 waved about one pose) would be judged at the wrong attitudes. These cheap checks come first: a fit they
 refuse costs no norm-uncertainty fit and no heading figures. An early fit (the recent samples, before the
-series is long enough) of readings that turned (``config.STATIC_SPREAD``) tilted past a ring's
-(``INFER_INCLINATION_MAX_TILT_DEG``) that fails the azimuths is judged as rich motion's instead, at ±30° on
-``early_heading_p95_deg``: a tumble's first seconds turn about no one axis, and the azimuth rule held their fits back
-to 7.5-10 s where the 30° figure passed at 4-6 s (``scripts/bench_speed.py``). Readings at rest (a car's first
-seconds, parked) keep the rule, and so do the series fits: its refusal sets how long the next fit waits
+series is long enough) of readings that turned (``config.STATIC_SPREAD``) and leave any ring's plane
+(``ring_tilt_deg``), both it and its tilt seen past a ring's (``INFER_INCLINATION_MAX_TILT_DEG``), that fails the
+azimuths is judged as rich motion's instead, at ±30° on ``early_heading_p95_deg``: a tumble's first seconds turn
+about no one axis, and the azimuth rule held their fits back to 7.5-10 s where the 30° figure passed at 4-6 s
+(``scripts/bench_speed.py``). Readings at rest (a car's first seconds, parked) or near a plane (a ground robot's first
+seconds) keep the rule, and so do the series fits: its refusal sets how long the next fit waits
 (``partial._partial_close``) and starts the azimuth watch a ring's next fit waits on (``partial._az_watch``).
 
 **Near-level rings.** A ring whose raw readings leave its plane by at most ``near_level_tilt_deg``
@@ -581,11 +582,12 @@ def partial_fit_steps(series: Array, prior: Calibration | None, cfg: PipelineCon
                                  gyro_frame_shares=pf.gyro_frame_shares,
                                  level=pf.level)
         azimuth = azimuth_coverage(cal, series)
-        # an early fit of turning readings, tilted past a ring's but turned through too few azimuths for a band (a
-        # tumble's first seconds): judged as rich motion's, at 30 deg (module docstring, **Decision**)
+        # an early fit of turning readings off any ring's plane, tilted past a ring's but turned through too few
+        # azimuths for a band (a tumble's first seconds): judged as rich motion's, at 30 deg (module docstring, **Decision**)
         arc = ""
         if (not rich and not azimuth >= cfg.partial_min_azimuth and early and cfg.early_fit
-                and tilt > INFER_INCLINATION_MAX_TILT_DEG and relative_spread(np.asarray(series)[:, :3]) >= STATIC_SPREAD):
+                and min(tilt, thick) > INFER_INCLINATION_MAX_TILT_DEG
+                and relative_spread(np.asarray(series)[:, :3]) >= STATIC_SPREAD):
             rich, arc = True, (f"the field turned through {100 * azimuth:.0f} % of the azimuths about the body z axis < "
                                f"{100 * cfg.partial_min_azimuth:.0f} % (not a ground robot's turns), judged as rich motion: ")
         if not rich and not azimuth >= cfg.partial_min_azimuth:
