@@ -539,8 +539,8 @@ class SensorCalibrator(ChangeDetection, Evaluation):
             msg += f"; {self._intake.learnt}"
         if self.dropped["saturated"]:
             msg += f"; {self._intake.rails.describe(self.config.unit, self.dropped['saturated'])}"
-        if self._intake.gyro_ignored:
-            msg += f"; {self._intake.gyro_note()}"
+        if gyro_note := self._intake.gyro_note():
+            msg += f"; {gyro_note}"
         msg += self._partial_message()
         if self._time_base_note:
             msg += f"; {self._time_base_note}"
