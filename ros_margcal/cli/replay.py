@@ -139,7 +139,9 @@ def _plot(cals: dict[str, SensorCalibrator], path: Path) -> None:
         ax.set_title(f"{s}: {view.state}, {100 * view.coverage:.0f} % of bins (unit: {view.radius:.4g} {view.unit})")
         ax.legend(loc="upper left", fontsize="small")
         ax2 = fig.add_subplot(n, 2, 2 * row + 2)
-        d = c.buffer.points() - (c.calibration.offset if c.calibration is not None else c.buffer.center)
+        q = c.up_rotation  # up_axis: the buffer holds the turned readings q v
+        pts, centre = (c.buffer.points(), c.buffer.center) if q is None else (c.buffer.points() @ q, c.buffer.center @ q)
+        d = pts - (c.calibration.offset if c.calibration is not None else centre)
         if c.calibration is not None:
             d = d @ c.calibration.matrix.T  # directions of the calibrated field
         theta = np.degrees(np.arctan2(d[:, 2], np.hypot(d[:, 0], d[:, 1]))) if len(d) else np.zeros(0)

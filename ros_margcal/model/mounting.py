@@ -73,8 +73,8 @@ from .fitting_jackknife import grouped_jackknife
 from .steps import Steps, drained
 
 __all__ = ["DECIDE_CHI2", "JACKKNIFE_CHUNKS", "MIN_BLOCKS", "MISALIGN_STD", "REFINE", "RIVAL", "ROTATIONS", "SINGLE_AXIS",
-           "TIME_OFFSET_STD", "Mounting", "axis_angle", "find_mounting", "find_mounting_steps", "into_imu_frame", "rotation_name",
-           "rotvec", "turned"]
+           "TIME_OFFSET_STD", "UP_AXES", "Mounting", "axis_angle", "find_mounting", "find_mounting_steps", "into_imu_frame",
+           "rotation_name", "rotvec", "turned", "up_rotation"]
 
 Array = NDArray[np.float64]
 
@@ -195,14 +195,42 @@ class Mounting:
 
 def turned(cal: Calibration, q: Array) -> Calibration:
     """``cal`` for readings turned by the rotation ``q`` (``v' = q v``): ``b' = q b``, ``W' = q W q^T`` (its output
-    turned by ``q`` too: the same norms), the covariance over the symmetric parameters carried over."""
+    turned by ``q`` too: the same norms), the covariance over the symmetric parameters (and the norm, when it is
+    the last) carried over; a covariance over other parameters is dropped (it would describe the unturned ones)."""
     b, w = np.asarray(cal.offset, dtype=np.float64), np.asarray(cal.matrix, dtype=np.float64)
-    cov = cal.covariance
-    if cov is not None and tuple(cal.parameter_names) == parameter_names("sym", scale_free=False):
+    cov, names = cal.covariance, tuple(cal.parameter_names)
+    if cov is not None and names in (parameter_names("sym", scale_free=False), parameter_names("sym", scale_free=True)):
         cols = [pack(q @ bi, q @ wi @ q.T, "sym") for bi, wi in (unpack(e, "sym") for e in np.eye(9))]
-        t = np.array(cols).T  # the parameters' linear map
+        t = np.eye(len(names))
+        t[:9, :9] = np.array(cols).T  # the parameters' linear map (the norm's row and column: itself)
         cov = t @ np.asarray(cov, dtype=np.float64) @ t.T
-    return cal.replace(offset=q @ b, matrix=q @ w @ q.T, covariance=cov)
+    elif cov is not None:
+        cov, names = None, ()
+    return cal.replace(offset=q @ b, matrix=q @ w @ q.T, covariance=cov, parameter_names=names)
+
+
+UP_AXES = ("z", "+z", "-z", "x", "+x", "-x", "y", "+y", "-y")
+"""The admitted ``up_axis`` values: the magnetometer's axis that points up when the vehicle is level."""
+
+
+def up_rotation(axis: str) -> Array | None:
+    """The rotation ``q`` (a signed permutation, det +1) that turns readings so that the magnetometer's ``axis`` (one of
+    ``UP_AXES``) becomes +z: ``q e_axis = e_z``; None for ``"z"`` (nothing to turn). A sensor mounted on its side on a
+    ground robot, without a gyro to find its mounting: its ring lies about that axis, and every ring rule and heading
+    figure takes z as up (``stream/observable.py``).
+
+    Raises:
+        InputError: ``axis`` is not one of ``UP_AXES``.
+    """
+    if axis not in UP_AXES:
+        msg = f"up_axis must be one of {UP_AXES}, got {axis!r}"
+        raise InputError(msg)
+    if axis.lstrip("+") == "z":
+        return None
+    up = np.zeros(3)
+    up["xyz".index(axis[-1])] = -1.0 if axis.startswith("-") else 1.0
+    first = np.eye(3)[int(np.argmin(np.abs(up)))]  # an axis across it (the first of x, y, z not along it)
+    return np.array([first, np.cross(up, first), up])  # rows: x', y' = z' x x', z' = up (right-handed)
 
 
 def into_imu_frame(cal: Calibration, mounting: Mounting) -> Calibration:

@@ -135,6 +135,11 @@ _MAG_BOOL: dict[str, str] = {
     "calibrate_into_imu_frame": "magnetometer with a gyro: publish the calibration in the Imu's frame once its mounting "
                                 "rotation is decided",
 }
+_MAG_STR: dict[str, str] = {
+    "up_axis": "magnetometer: its axis pointing up when the vehicle is level (z; y, -x, ... for one mounted on its side, "
+               "without a gyro to find its mounting): the readings are turned so that it is z; the calibration stays in "
+               "the magnetometer's axes",
+}
 _ACCEL_BOOL: dict[str, str] = {
     "gate_learn_noise": "inactivity gate: widen the threshold to the sensor's learnt rest noise (at most 1e-2)",
 }
@@ -496,12 +501,14 @@ class MargCalNode(Node):
         if s == "mag":
             for name, text in _MAG_BOOL.items():
                 self.declare_parameter(f"{s}.{name}", bool(getattr(base, name)), ParameterDescriptor(description=text))
+            for name, text in _MAG_STR.items():
+                self.declare_parameter(f"{s}.{name}", str(getattr(base, name)), ParameterDescriptor(description=text))
         return self._config_from(s, {})
 
     def _config_from(self, s: str, changed: dict[str, Any]) -> PipelineConfig:
         """The PipelineConfig of sensor ``s`` from the declared parameters, with ``changed`` applied."""
         base = PipelineConfig.for_sensor(s, unit=self._units[s])
-        own = [*_ACCEL_GATE, *_ACCEL_BOOL] if s == "accel" else [*_MAG_BOOL]
+        own = [*_ACCEL_GATE, *_ACCEL_BOOL] if s == "accel" else [*_MAG_BOOL, *_MAG_STR]
         names = [*_FLOAT_PARAMS, *_INT_PARAMS, *_BOOL_PARAMS, *_READ_ONLY_INT, *own]
         values: dict[str, Any] = {}
         for name in names:

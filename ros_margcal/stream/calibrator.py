@@ -75,6 +75,7 @@ from ..coverage.buffer import DirectionBuffer
 from ..coverage.gate import GyroAidedGate
 from ..model.calibration import Calibration
 from ..model.errors import ConfigError, InputError
+from ..model.mounting import turned, up_rotation
 from ..validation.shipped import default_validator
 from .change import ChangeDetection
 from .config import STATIC_SPREAD, PipelineConfig, raise_hint, relative_spread
@@ -121,6 +122,8 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         if self.config.sensor != sensor:
             self.config = replace(self.config, sensor=sensor)
         self.validator = validator if validator is not None else default_validator()
+        self._set_up(self.config)
+        calibration = self._inward(calibration)
         self._initial = calibration
         self.reset()
         if calibration is not None:
@@ -183,15 +186,54 @@ class SensorCalibrator(ChangeDetection, Evaluation):
             self._install(cal)
 
     def reconfigure(self, config: PipelineConfig) -> None:
-        """Use new options from now on; buffer or gate options rebuild them (the calibration is kept)."""
+        """Use new options from now on; buffer or gate options rebuild them (the calibration is kept; a new
+        ``up_axis`` turns it and starts the samples over: the buffered ones are turned the old way)."""
         config = replace(config.checked(), sensor=self.sensor)
         rebuild = any(getattr(config, k) != getattr(self.config, k) for k in
                       ("n_bins", "per_bin", "recent_samples", "gate_window_s", "gate_cv_threshold", "gate_gyro_threshold",
-                       "gate_gyro_window_s", "gate_gyro_rest_threshold", "gate_learn_noise", "gyro_aided", "gyro_samples"))
+                       "gate_gyro_window_s", "gate_gyro_rest_threshold", "gate_learn_noise", "gyro_aided", "gyro_samples",
+                       "up_axis"))
+        if config.up_axis != self.config.up_axis:
+            kept = self.calibration
+            self._set_up(config)
+            self._cal = self._inward(kept)
         self.config = config
         self._intake.config = config
         if rebuild:
             self.reset(keep_calibration=True)
+
+    def _set_up(self, config: PipelineConfig) -> None:
+        """The turn of the readings ``up_axis`` asks for (``model.mounting.up_rotation``; None: none), as the
+        turned sample's (source axis, sign) per axis for the sample path."""
+        q = up_rotation(config.up_axis) if self.sensor == "mag" else None
+        self._q = q
+        self._q_axes = None if q is None else tuple((int(np.argmax(np.abs(r))), float(r[np.argmax(np.abs(r))])) for r in q)
+        self._out_of: Calibration | None = None  # the internal calibration ``_out`` was turned from
+        self._out: Calibration | None = None
+
+    def _inward(self, cal: Calibration | None) -> Calibration | None:
+        """A calibration of the magnetometer's own readings, for the turned readings (``up_axis``)."""
+        return cal if cal is None or self._q is None else turned(cal, self._q)
+
+    def _outward(self, cal: Calibration | None) -> Calibration | None:
+        """A calibration of the turned readings (``up_axis``), for the magnetometer's own: ``b = q^T b'``,
+        ``W = q^T W' q`` (the calibrated field in the magnetometer's axes, the same norms)."""
+        return cal if cal is None or self._q is None else turned(cal, self._q.T)
+
+    def _outward_events(self, events: list[Event]) -> list[Event]:
+        """``events`` with their calibrations in the magnetometer's own axes (``up_axis``)."""
+        if self._q is None or not events:
+            return events
+        return [e if e.calibration is None else replace(e, calibration=self._out_calibration(e.calibration))
+                for e in events]
+
+    def _out_calibration(self, cal: Calibration) -> Calibration:
+        """``_outward(cal)``, the same object for the same calibration (the node's worker sends a calibration when
+        the object it reads changes)."""
+        if cal is not self._out_of:
+            self._out_of, self._out = cal, self._outward(cal)
+        assert self._out is not None
+        return self._out
 
     def set_calibration(self, cal: Calibration | None) -> None:
         """Replace the current calibration (None: forget it and start collecting); a fit in progress is dropped."""
@@ -201,6 +243,7 @@ class SensorCalibrator(ChangeDetection, Evaluation):
             self._state = State.COLLECTING
             self._intake.expected = None
         else:
+            cal = self._inward(cal)
             self._install(cal)
         self._partial, self._figures = None, None
         self._set_prior(cal)
@@ -218,8 +261,15 @@ class SensorCalibrator(ChangeDetection, Evaluation):
 
     @property
     def calibration(self) -> Calibration | None:
-        """The current (last accepted) calibration, or None."""
-        return self._cal
+        """The current (last accepted) calibration, or None; of the magnetometer's own readings (``up_axis``)."""
+        cal = self._cal
+        return cal if cal is None or self._q is None else self._out_calibration(cal)
+
+    @property
+    def up_rotation(self) -> NDArray[np.float64] | None:
+        """The rotation the readings are turned by before the buffer (``up_axis``), or None: the buffer's points
+        ``p'`` are ``q p``."""
+        return self._q
 
     @property
     def state(self) -> State:
@@ -268,12 +318,29 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         Never raises, whatever ``t``, ``xyz`` and ``gyro`` are: bad samples are dropped and counted in
         ``dropped`` (see ``intake`` for the rules, the module docstring for the counting).
         """
+        events = self._push(t, xyz, gyro)
+        return events if self._q is None or not events else self._outward_events(events)
+
+    def refit(self, t: float | None = None) -> list[Event]:
+        """Validate and fit now, ignoring the cadence (the refit service). The validator still decides."""
+        return self._outward_events(super().refit(t))
+
+    def run_pending(self, lock: Any = None) -> list[Event]:
+        """``Evaluation.run_pending``, its calibrations in the magnetometer's own axes (``up_axis``)."""
+        return self._outward_events(super().run_pending(lock))
+
+    def finish_fit(self) -> list[Event]:
+        """``Evaluation.finish_fit``, its calibrations in the magnetometer's own axes (``up_axis``)."""
+        return self._outward_events(super().finish_fit())
+
+    def _push(self, t: float, xyz: ArrayLike, gyro: ArrayLike | None = None) -> list[Event]:
+        """``push`` with the calibrations of its events in the turned readings' axes (``up_axis``)."""
         if self._sliced is not None:  # a fit in progress: one step a push, whatever the sample (evaluation.py)
             stepped = self._fit_step()
             if stepped:  # it ended: its events first, then this sample under what it installed (no fit in progress now)
                 self._hold_figures = True  # its heading figures in a later push, not on top of its last step
                 try:
-                    return stepped + self.push(t, xyz, gyro)
+                    return stepped + self._push(t, xyz, gyro)
                 finally:
                     self._hold_figures = False
         intake = self._intake
@@ -283,6 +350,12 @@ class SensorCalibrator(ChangeDetection, Evaluation):
                 self._rail_found()
             return []
         t, (x, y, z), g = got
+        if self._q_axes is not None:  # up_axis: the readings (and rates) turned so that the up axis is z
+            (i, si), (j, sj), (k, sk) = self._q_axes
+            v = (x, y, z)
+            x, y, z = si * v[i], sj * v[j], sk * v[k]
+            if g is not None:
+                g = (si * g[i], sj * g[j], sk * g[k])
         events = [] if intake.new_base_step is None else self._new_time_base(t, intake.new_base_step)
         if intake.relearnt_now:
             self._limits_relearnt(t)
@@ -496,7 +569,7 @@ class SensorCalibrator(ChangeDetection, Evaluation):
             msg = f"status(now=...) takes a time in seconds, got {now!r:.40}"
             raise InputError(msg) from exc
         self._settle_figures()
-        cal = self._cal
+        cal = self.calibration  # in the magnetometer's own axes (up_axis)
         figures = self._residual_figures()
         res = None if figures is None else figures[0]
         st = self._state
@@ -544,6 +617,9 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         msg += self._partial_message()
         if self._time_base_note:
             msg += f"; {self._time_base_note}"
+        if self._q is not None:
+            msg += (f"; readings turned so that the magnetometer's {self.config.up_axis} axis is z ({self.sensor}.up_axis): "
+                    "the axes named above are the turned readings', the calibration is in the magnetometer's own")
         ind = self._indicators
         ind_d: dict[str, float] = {}
         if ind is not None:

@@ -46,6 +46,7 @@ from ..model.calibration import MODELS, Calibration
 from ..model.errors import ConfigError
 from ..model.fitting import LOSSES, METHODS, SUPPORTED
 from ..model.geomag import GeomagField, field_at
+from ..model.mounting import UP_AXES
 from .units import ACCEL_UNITS, GRAVITY, LEARN_SAMPLES, MAG_UNITS, other_sensors_unit, unit_scale
 
 __all__ = ["ACCEL_UNITS", "FIELD_SPECS", "GRAVITY", "GYRO_PAIR_S", "MAG_UNITS", "MOTION_NOT_NOISE", "RESIDUAL_NOISE_FACTOR",
@@ -139,6 +140,8 @@ class PipelineConfig:
     partial_samples: int = 1500  # ... the last this many (300 s at the defaults)
     partial_max_tilt_deg: float = 45.0  # a partial fit only for a ring or band: data tilted at most this much
     near_level_tilt_deg: float = 2.5  # a ring this flat, without a gyro, is held level (stream/observable.py); 0: never
+    up_axis: str = "z"  # magnetometer: its axis pointing up when the vehicle is level ("y", "-x", ...: mounted on its
+    # side); the readings are turned so that it is z, the calibration published in the magnetometer's own axes
     gyro_aided: bool = True  # magnetometer: a rate pushed with a sample joins the partial fit (model/fitting_gyro.py) ...
     gyro_samples: int = 15000  # ... the last this many samples with their rates (300 s at 50 Hz) ...
     gyro_block_s: float = 1.0  # ... in blocks of this length (the longer, the larger the turn against the noise)
@@ -254,6 +257,9 @@ class PipelineConfig:
             raise ConfigError(f"need 0 <= norm_min < norm_max, got {self.norm_min}, {self.norm_max}")
         if not self.min_magnitude < self.max_magnitude:
             raise ConfigError(f"need 0 <= min_magnitude < max_magnitude, got {self.min_magnitude}, {self.max_magnitude}")
+        if self.sensor == "accel" and self.up_axis.lstrip("+") != "z":
+            raise ConfigError(f"up_axis {self.up_axis!r} is the magnetometer's option (the axis its ring turns about); "
+                              "the accelerometer has none: set mag.up_axis")
         if (self.latitude_deg is None) != (self.longitude_deg is None):
             raise ConfigError(f"a position needs latitude_deg and longitude_deg, got {self.latitude_deg!r} and "
                               f"{self.longitude_deg!r}")
@@ -384,6 +390,7 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "prior_inflate": _real(1.0, 1e6),
     "partial_max_tilt_deg": _real(0.0, 90.0),
     "near_level_tilt_deg": _real(0.0, 90.0),
+    "up_axis": FieldSpec(str, choices=UP_AXES),
     "partial_min_azimuth": _ratio(1.0),
     "gyro_aided": FieldSpec(bool),
     "gyro_samples": FieldSpec(int, 100, 1_000_000),

@@ -46,6 +46,7 @@ from ..model.errors import MargCalError, RunawayError
 from ..model.fitting import fit
 from ..model.steps import Steps, drained
 from .config import PipelineConfig, apart, guard_rails, white_noise
+from .observable import side_axis
 from .partial import PartialCalibration
 from .status import Event, EventKind, State, pct
 
@@ -407,6 +408,16 @@ class Evaluation(PartialCalibration):
         if got is not None:
             self._figures, self._prior = got
 
+    def _side_hint(self, job: dict[str, Any]) -> str:
+        """What a refused partial fit's note adds when its readings trace a ring about the magnetometer's x or y axis
+        (``observable.side_axis``) and nothing turns them (no ``up_axis``, no gyro to find the mounting): "" else."""
+        if self.config.up_axis.lstrip("+") != "z" or job.get("gyro_seen") or job.get("mount_applied") is not None:
+            return ""
+        axis = side_axis(np.asarray(job["series"], dtype=np.float64))
+        return "" if not axis else (
+            f"; the readings trace a ring about the magnetometer's {axis} axis: on a vehicle, a magnetometer mounted on its "
+            f"side (set {self.sensor}.up_axis={axis}); in a hand, turn it about its other axes too")
+
     def _fit_finish(self, job: dict[str, Any], result: tuple[Calibration | None, str]) -> list[Event]:
         """Install the fit (or report its rejection) unless the data it saw went stale meanwhile."""
         t = job["t"]
@@ -416,7 +427,7 @@ class Evaluation(PartialCalibration):
         cal, reason = result
         self._runaways = self._runaways + 1 if job.get("runaway") else 0
         if cal is None and job.get("partial"):  # not good enough yet: keep collecting, say why
-            self._partial_note = reason
+            self._partial_note = reason + self._side_hint(job)
             self._partial_close(job)
             return []
         if cal is None:

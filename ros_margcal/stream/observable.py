@@ -138,7 +138,7 @@ from .config import STATIC_SPREAD, PipelineConfig, apart, guard_rails, readings_
 __all__ = ["AZIMUTH_SECTORS", "DEFAULT_INCLINATION_DEG", "NEAR_LEVEL_NORM_REL_STD", "NEAR_LEVEL_TILT_DEG", "RING_AXIS_MAX_DEG",
            "RING_FLAT", "SIGMA_REUSE_TOLERANCE", "HeadingFigures", "PartialResult", "azimuth_coverage", "azimuth_sector",
            "azimuth_sectors", "heading_figures", "partial_fit", "partial_fit_steps", "regions_seen", "ring_centre",
-           "ring_figures", "ring_tilt_deg", "sphere_radius", "tilt_seen_deg"]
+           "ring_figures", "ring_tilt_deg", "side_axis", "sphere_radius", "tilt_seen_deg"]
 
 Array = NDArray[np.float64]
 
@@ -358,6 +358,19 @@ def ring_centre(h: Array) -> tuple[float, float]:
     if not (sv[2] <= RING_FLAT * sv[1] and abs(vt[2, 2]) >= math.cos(math.radians(RING_AXIS_MAX_DEG))):
         return 0.0, 0.0
     return circle_centre(h[:, :2])
+
+
+def side_axis(raw: Array) -> str:
+    """``"x"`` or ``"y"`` when raw readings trace a flat ring (``RING_FLAT``) about that axis of the sensor (within
+    ``RING_AXIS_MAX_DEG``), else "": a magnetometer mounted on its side on a turning vehicle, or one waved in a cone
+    about that axis; the ring rules and heading figures take z as up (``up_axis`` turns the readings)."""
+    if len(raw) < 10:
+        return ""
+    _, sv, vt = np.linalg.svd(raw - raw.mean(axis=0), full_matrices=False)
+    if not sv[2] <= RING_FLAT * sv[1]:
+        return ""
+    k = int(np.argmax(np.abs(vt[2])))
+    return "xy"[k] if k < 2 and abs(vt[2, k]) >= math.cos(math.radians(RING_AXIS_MAX_DEG)) else ""
 
 
 def azimuth_sectors(cal: Calibration, raw: Array, centre: tuple[float, float] | None = None) -> Array:

@@ -58,12 +58,13 @@ def coverage_view(calibrator: Any) -> CoverageView:
     """The picture of a ``SensorCalibrator`` now (its buffer, its calibration, its state)."""
     buf = calibrator.buffer
     cal = calibrator.calibration
-    pts = buf.points()
+    q = getattr(calibrator, "up_rotation", None)  # up_axis: the buffer holds the turned readings q v; shown unturned
+    pts = buf.points() if q is None else buf.points() @ q
     if cal is not None:
         centre = np.asarray(cal.offset, dtype=float)
         radius = cal.norm / abs(float(np.linalg.det(cal.matrix))) ** (1.0 / 3.0)
     else:
-        centre = buf.center
+        centre = buf.center if q is None else buf.center @ q
         radius = buf.radius or (float(np.median(np.linalg.norm(pts - centre, axis=1))) if len(pts) else 1.0)
     if not (math.isfinite(radius) and radius > 0.0):
         radius = 1.0
@@ -75,6 +76,7 @@ def coverage_view(calibrator: Any) -> CoverageView:
         if np.linalg.det(axes) < 0.0:
             axes[:, 2] *= -1.0  # a rotation (RViz takes a quaternion); the ellipsoid is the same
     dirs = bin_directions(buf.n_bands, buf.n_sectors)
+    dirs = dirs if q is None else dirs @ q
     counts = np.asarray(buf.bin_counts())
     return CoverageView(sensor=calibrator.sensor, state=calibrator.state.value, unit=calibrator.config.unit,
                         coverage=float(buf.coverage()), radius=float(radius), points=(pts - centre) / radius,

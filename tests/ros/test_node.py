@@ -301,6 +301,12 @@ def test_parameters_are_checked(harness: Harness) -> None:
     assert node.configs["mag"].max_residual == 0.02
     # read at start only: refused rather than accepted and ignored
     assert not node.set_parameters([Parameter("mag.enabled", value=False)])[0].successful
+    # a magnetometer mounted on its side: up_axis, one of the sensor's axes
+    assert node.set_parameters([Parameter("mag.up_axis", value="-y")])[0].successful
+    assert node.configs["mag"].up_axis == "-y"
+    res = node.set_parameters([Parameter("mag.up_axis", value="w")])[0]
+    assert not res.successful and "up_axis must be one of" in res.reason
+    assert node.configs["mag"].up_axis == "-y"
 
 
 def test_sensors_can_be_switched_off(harness: Harness) -> None:

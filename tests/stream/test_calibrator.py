@@ -405,8 +405,8 @@ def test_shipped_parameter_file_matches_the_defaults_with_float_literals() -> No
         for key, value in block.items():
             assert key in types, f"{sensor}.{key} is not an option"
             default = getattr(base, key)
-            if key == "unit":
-                assert value == default, f"{sensor}.unit"
+            if key in ("unit", "up_axis"):
+                assert value == default, f"{sensor}.{key}"
             elif "float" in str(types[key]):
                 assert isinstance(value, float), f"{sensor}.{key}: write {value!r} as a float literal"
                 assert value == pytest.approx(default or 0.0, rel=1e-4), f"{sensor}.{key} differs from the default"
