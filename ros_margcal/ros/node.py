@@ -8,7 +8,8 @@ Topics (defaults, all remappable; REP-145 names, REP-103 units):
 - publishes, reliable (the system default, REP-2003 for publishers, so default-QoS and sensor-data
   subscribers both receive), ``imu_calibrated/data_raw`` and ``imu_calibrated/mag`` (header
   unchanged, covariance ``W Σ Wᵀ``; a sample with a non-finite or zero vector, or on a saturated axis
-  (``stream.saturation``), is not published),
+  (``stream.saturation``), is not published; nor is any while a declared sensor change has made the calibration
+  wrong, until a calibration fits again: raw values then with ``publish_uncalibrated``),
   ``/calib/status`` (diagnostic_msgs/DiagnosticArray, one status per sensor, every ``status_period_s``,
   with the rate received and the callback times; also on ``/diagnostics`` when ``publish_diagnostics``),
   and the current calibration on ``/calib/mag`` and ``/calib/accel`` (std_msgs/String with the
@@ -84,7 +85,7 @@ from ..model.geomag import distance_km, field_at
 from ..stream.config import PipelineConfig, plausibility
 from ..stream.saturation import RailWatch
 from ..stream.status import EventKind, Level, State, Status
-from ..stream.units import unit_scale
+from ..stream.units import unit_scale, unknown_unit_note
 from ..validation.shipped import load_validator
 from .environment import use_venv_ament_prefix
 from .markers import coverage_markers
@@ -187,6 +188,11 @@ SERVICE_QUEUE = 100
 MAX_OTHER_FRAMES = 8
 """At most this many other frame_ids are named in the status (each up to ``FRAME_SHOWN`` characters); messages of
 further ones are counted only: a frame_id changing on every message grew the status to 4 MB and the node by 50 MB."""
+FRAME_TAKEOVER = 200
+"""When at least ``FRAME_TAKEOVER_SHARE`` of a topic's last this many messages carry one other frame_id, the sensor
+follows that frame: a driver that changed its frame_id, or a first message with a stray one (an empty frame_id once,
+then imu_link: 2954 of 3000 messages were ignored for good). The calibration of the old frame is forgotten."""
+FRAME_TAKEOVER_SHARE = 0.9
 FRAME_SHOWN = 40
 
 
@@ -215,8 +221,8 @@ def _limits(cfg: PipelineConfig) -> tuple[float, float]:
 def _publishable(v: Any, limits: tuple[float, float]) -> bool:
     """A raw vector worth publishing calibrated: finite, not zero (a failed read, a dead sensor) and within the
     magnitudes the calibrator takes (a driver in another unit): the calibrator refuses the others too."""
-    n = math.sqrt(float(v[0]) ** 2 + float(v[1]) ** 2 + float(v[2]) ** 2)
-    return limits[0] < n <= limits[1]  # False for NaN and Inf
+    n = math.hypot(float(v[0]), float(v[1]), float(v[2]))  # no overflow: squaring 1e200 raised and ended the node
+    return math.isfinite(n) and limits[0] < n <= limits[1]  # False for NaN and Inf (learnt limits reach +inf)
 
 
 def _shown(frame_id: str) -> str:
@@ -267,7 +273,9 @@ class _Traffic:
         self.received = 0
         self.last_rx: float | None = None
         self.times: deque[float] = deque(maxlen=CALLBACK_TIMES)
-        self.frame: str | None = None  # the frame_id the sensor is calibrated in: the first one seen
+        self.frame: str | None = None  # the frame_id the sensor is calibrated in: the first one seen (or a takeover's)
+        self.recent_frames: deque[str] = deque(maxlen=FRAME_TAKEOVER)  # the last messages' frame_ids (``takeover``)
+        self.recent_counts: dict[str, int] = {}
         self.other_frames: dict[str, int] = {}  # messages of other frame_ids, ignored (MAX_OTHER_FRAMES named)
         self.other_more = 0  # ... and of further frame_ids, counted only
         self.other_frame_rx = -math.inf
@@ -288,6 +296,19 @@ class _Traffic:
             return ""
         why = ", ".join(f"{k} {v}" for k, v in sorted(delta.items(), key=lambda kv: -kv[1]))
         return f"dropping {100 * sum(delta.values()) / seen:.0f} % of the samples ({why} of the last {seen})"
+
+    def takeover(self, frame_id: str) -> bool:
+        """Record one message's frame_id; True when another frame than ``frame`` now carries the topic
+        (``FRAME_TAKEOVER``): the caller switches to it."""
+        recent, counts = self.recent_frames, self.recent_counts
+        if len(recent) == FRAME_TAKEOVER:
+            old = recent[0]
+            counts[old] -= 1
+            if not counts[old]:
+                del counts[old]
+        recent.append(frame_id)
+        counts[frame_id] = counts.get(frame_id, 0) + 1
+        return frame_id != self.frame and counts[frame_id] >= FRAME_TAKEOVER_SHARE * FRAME_TAKEOVER
 
     def tick(self, now: float) -> float:
         """Record the count at ``now`` (each status); the rate over about ``RATE_WINDOW_S``, Hz."""
@@ -344,6 +365,7 @@ class MargCalNode(Node):
         self._units: dict[str, str] = {}
         self._batch: list[tuple[Any, ...]] = []
         self._calibration: dict[str, Calibration | None] = {}
+        self._withheld: set[str] = set()  # sensors whose calibration a declared change made wrong: not applied
         self._configs: dict[str, PipelineConfig] = {}
         self._status: dict[str, Status] = {}
         self._requests: dict[int, tuple[Future, float]] = {}
@@ -477,10 +499,14 @@ class MargCalNode(Node):
             description=f"unit of the driver's {s} messages ({si} per REP-103; e.g. gauss, uT, g; 'counts' learns "
                         "the magnitudes from the data); the calibrated messages are in the same unit", read_only=True)).value)
         try:
+            if not unit.strip():
+                raise ConfigError("empty")
             PipelineConfig.for_sensor(s, unit=unit)
         except ConfigError as exc:
             self.get_logger().error(f"{s}.unit {unit!r} refused ({exc}); using {si}")
             unit = si
+        if note := unknown_unit_note(s, unit):
+            self.get_logger().warning(f"{s}.unit: {note}")
         self._units[s] = unit
         base = PipelineConfig.for_sensor(s, unit=unit)
         for name, (lo, hi, text) in _FLOAT_PARAMS.items():
@@ -552,7 +578,7 @@ class MargCalNode(Node):
         t0 = time.perf_counter()
         t, v = mag_to_numpy(msg)
         self._take("mag", t, v, None, msg.header.frame_id)
-        cal = self._calibration["mag"]
+        cal = None if "mag" in self._withheld else self._calibration["mag"]
         publish = cal is not None or self._publish_raw
         if _publishable(v, self._limits["mag"]) and self._frame_ok("mag", msg) and not self._pinned("mag", v) and publish:
             self._pub_mag.publish(calibrate_mag(msg, cal))
@@ -563,7 +589,7 @@ class MargCalNode(Node):
         t, acc, gyro = imu_to_numpy(msg)
         self._take("accel", t, acc, gyro, msg.header.frame_id)
         if "accel" in self._configs:
-            cal = self._calibration["accel"]
+            cal = None if "accel" in self._withheld else self._calibration["accel"]
             publish = cal is not None or self._publish_raw
             if (_publishable(acc, self._limits["accel"]) and self._frame_ok("accel", msg)
                     and not self._pinned("accel", acc) and publish):
@@ -578,6 +604,8 @@ class MargCalNode(Node):
         traffic.last_rx = now
         if traffic.frame is None:
             traffic.frame = frame_id
+        if traffic.takeover(frame_id):
+            self._follow_frame(s, frame_id)
         elif frame_id != traffic.frame:  # a second sensor on the topic: pooled, it would spoil both calibrations
             others = traffic.other_frames
             if frame_id in others or len(others) < MAX_OTHER_FRAMES:
@@ -592,6 +620,20 @@ class MargCalNode(Node):
             self.get_logger().warning(src.pop_warning() or "")
         g = (math.nan,) * 3 if gyro is None else (float(gyro[0]), float(gyro[1]), float(gyro[2]))
         self._batch.append((s, t, float(v[0]), float(v[1]), float(v[2]), *g, frame_id, now))
+
+    def _follow_frame(self, s: str, frame_id: str) -> None:
+        """Another frame carries the topic now (``FRAME_TAKEOVER``): calibrate that one, from nothing (the old frame's
+        calibration and samples are another sensor's, or a stray frame_id's)."""
+        traffic = self._traffic[s]
+        self.get_logger().warning(
+            f"{s}: {FRAME_TAKEOVER_SHARE:.0%} of the last {FRAME_TAKEOVER} messages carry frame_id {_shown(frame_id)}, not "
+            f"{_shown(traffic.frame or '')}: following {_shown(frame_id)}, its calibration started afresh")
+        traffic.frame, traffic.other_frames, traffic.other_more = frame_id, {}, 0
+        self._batch = [b for b in self._batch if b[0] != s]  # the old frame's, not sent yet: not the new one's
+        traffic.reset_base = traffic.received - 1  # the worker counts from this message on
+        self._calibration[s] = None
+        self._withheld.discard(s)
+        self._worker.request("reset_sensor", s)
 
     def _pinned(self, s: str, v: Any) -> bool:
         """A reading on a saturated axis (``stream.saturation``, the worker's calibrator drops it too): its calibrated
@@ -638,6 +680,7 @@ class MargCalNode(Node):
             return
         self.get_logger().error("the calibration worker process ended; starting a new one from the current calibrations")
         self._worker.restart(self._specs())
+        self._withheld.clear()  # the new worker starts calibrated from them and declares a change again if there is one
         self._worker_started = now
         for future, _ in self._requests.values():
             future.set_result((False, "the calibration worker was restarted"))
@@ -648,10 +691,15 @@ class MargCalNode(Node):
         if ev.kind is EventKind.CALIBRATED and ev.calibration is not None:
             log.info(f"{ev.sensor}: {ev.message}")
             self._calibration[ev.sensor] = ev.calibration
+            self._withheld.discard(ev.sensor)
             self._pub_cal[ev.sensor].publish(calibration_to_string(ev.calibration, String, node=self.get_name()))
             if self.get_parameter("autosave").value:
                 self._save()
-        elif ev.kind is EventKind.CHANGED or (ev.kind is EventKind.REJECTED and self._calibration.get(ev.sensor) is None):
+        elif ev.kind is EventKind.CHANGED:  # the calibration no longer fits the sensor: not applied until one does
+            self._withheld.add(ev.sensor)
+            log.warning(f"{ev.sensor}: {ev.message}; the calibrated topic is silent (raw values with publish_uncalibrated) "
+                        "until the sensor is calibrated again or the change withdrawn")
+        elif ev.kind is EventKind.REJECTED and self._calibration.get(ev.sensor) is None:
             log.warning(f"{ev.sensor}: {ev.message}")
         elif ev.kind is EventKind.REJECTED:
             log.info(f"{ev.sensor}: {ev.message} (keeping the current calibration)")
@@ -751,6 +799,7 @@ class MargCalNode(Node):
         return response
 
     async def _srv_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        self._withheld.clear()
         for s in self._calibration:
             self._calibration[s] = None  # nothing more is published with the old calibration
         for s, traffic in self._traffic.items():

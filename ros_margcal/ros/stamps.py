@@ -57,7 +57,8 @@ class StampSource:
         last = self._last_header
         if header_t <= 0.0 or (last is not None and header_t <= last):
             self.fell_back = True
-            why = "zero" if header_t <= 0.0 else ("repeated" if header_t == last else "going backwards")
+            why = ("zero" if header_t == 0.0 else "negative (a stamp beyond 2038 wraps int32 sec)" if header_t < 0.0
+                   else "repeated" if header_t == last else "going backwards")
             after = "" if last is None else f" after {last:.9f} s"
             self.warning = (f"{self.stream}: header stamps are {why} ({header_t:.9f} s{after}); "
                             "using the receive time from now on (set stamp_source to 'header' or 'receive' to choose)")

@@ -138,6 +138,11 @@ class _Calibrators:
                 c.reset()
             self.restamp.clear()
             return True, f"reset {sorted(self.cals)}: collecting"
+        if kind == "reset_sensor":  # the node follows another frame_id on this sensor's topic
+            (sensor,) = args
+            self.cals[sensor].reset()
+            self.restamp.discard(sensor)
+            return True, f"{sensor}: reset: collecting"
         if kind == "refit":
             self._push_mag(self.pairing.release(time.monotonic(), everything=True))
             messages = [self._refit(s, c) for s, c in self.cals.items()]

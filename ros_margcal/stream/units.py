@@ -20,7 +20,7 @@ make sense in a known unit:
 from __future__ import annotations
 
 __all__ = ["ACCEL_UNITS", "GRAVITY", "LEARN_HIGH", "LEARN_LOW", "LEARN_SAMPLES", "MAG_UNITS", "RELEARN_FACTOR", "RELEARN_SHARE",
-           "other_sensors_unit", "unit_scale"]
+           "other_sensors_unit", "unit_scale", "unknown_unit_note"]
 
 GRAVITY = 9.80665
 """Standard gravity, m/s²."""
@@ -69,3 +69,17 @@ def other_sensors_unit(sensor: str, unit: str) -> str:
     meant = _MEANT.get(sensor, {}).get(unit)
     return (f"unit {unit!r} is {_A_SENSOR[other]} unit, not {_A_SENSOR[sensor]}'s"
             + (f" ({meant!r}?)" if meant else ""))
+
+
+COUNT_NAMES = ("counts", "count", "lsb", "raw", "adc", "digits")
+"""Names of raw counts (case-insensitive): an unknown unit by intent, which ``unknown_unit_note`` does not warn of."""
+
+
+def unknown_unit_note(sensor: str, unit: str) -> str:
+    """A warning for a unit no table knows and that names no counts ("" otherwise): it is read as counts, every
+    magnitude check learnt from the data, which a typo (``furlongs``, ``mps2``) should not do silently."""
+    if unit_scale(sensor, unit) is not None or unit.strip().lower() in COUNT_NAMES:
+        return ""
+    known = ", ".join(k for k in (MAG_UNITS if sensor == "mag" else ACCEL_UNITS) if k.isascii())
+    return (f"unit {unit!r} is not a known {sensor} unit ({known}): read as raw counts (magnitude limits learnt from "
+            "the data, no field-strength check)")

@@ -49,23 +49,33 @@ from __future__ import annotations
 import itertools
 import json
 import logging
+import math
 import os
 from collections.abc import Mapping, Sequence
+from dataclasses import fields
 from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ..coverage.indicators import Indicators
 from ..model.errors import CalibrationFileError, ConfigError, InputError
 from .roc import OperatingPoint, operating_point
 from .threshold import _LOG_FLOOR, DEFAULT_MAX_ERROR, DEFAULT_MAX_FPR, _features, _row_from
 
-__all__ = ["FuzzyValidator"]
+__all__ = ["INDICATOR_NAMES", "MAX_MF", "MAX_RULES", "FuzzyValidator"]
 
 log = logging.getLogger(__name__)
 
 Array = NDArray[np.float64]
+
+MAX_MF = 64
+"""Most membership functions per input (the trained validators use 4-10)."""
+MAX_RULES = 100_000
+"""Most rules (the product of ``n_mf``): a file asking for 1e9 x 1e9 allocated 7 TiB."""
+INDICATOR_NAMES = (*(f.name for f in fields(Indicators)), "e_total")
+"""The inputs a validator read from a file may take: the coverage indicators the calibrator computes."""
 
 class FuzzyValidator:
     """Zero-order TSK fuzzy system predicting the calibration error from coverage indicators.
@@ -88,14 +98,15 @@ class FuzzyValidator:
             msg = "FuzzyValidator needs at least one input"
             raise ConfigError(msg)
         n = [int(n_mf)] * m if isinstance(n_mf, int | np.integer) else [int(k) for k in n_mf]
-        if len(n) != m or min(n) < 2:
-            msg = f"n_mf must be one int >= 2 or one per input ({m}), got {n_mf!r}"
+        if len(n) != m or min(n) < 2 or max(n) > MAX_MF or math.prod(n) > MAX_RULES:
+            msg = (f"n_mf must be one int in [2, {MAX_MF}] or one per input ({m}), at most {MAX_RULES} rules in all, "
+                   f"got {n_mf!r}")
             raise ConfigError(msg)
         if target not in ("log", "linear"):
             msg = f"target must be 'log' or 'linear', got {target!r}"
             raise ConfigError(msg)
-        if not max_error > 0:
-            msg = f"max_error must be > 0, got {max_error}"
+        if not (math.isfinite(max_error) and max_error > 0):
+            msg = f"max_error must be a finite number > 0, got {max_error}"
             raise ConfigError(msg)
         self.n_mf = tuple(n)
         self.target = target
@@ -335,16 +346,24 @@ class FuzzyValidator:
             thr = d.get("threshold")
             v.threshold = None if thr is None else float(thr)
             v.metadata = dict(d.get("metadata") or {})
-        except (KeyError, TypeError, ValueError) as exc:
+        except (KeyError, TypeError, ValueError, ConfigError) as exc:
             msg = f"{where}: corrupt validator ({type(exc).__name__}: {exc})"
             raise CalibrationFileError(msg) from exc
+        unknown = [k for k in v.inputs if k not in INDICATOR_NAMES]
+        if unknown:
+            msg = f"{where}: corrupt validator (inputs {unknown} are no coverage indicators: {', '.join(INDICATOR_NAMES)})"
+            raise CalibrationFileError(msg)
+        if v.threshold is not None and not (math.isfinite(v.threshold) and v.threshold > 0):
+            msg = f"{where}: corrupt validator (threshold {v.threshold!r}: a predicted error must be finite and > 0)"
+            raise CalibrationFileError(msg)
         m = len(v.inputs)
         ok = (v.lo.shape == (m,) and v.hi.shape == (m,) and len(v.centers) == m
+              and bool(np.all(np.isfinite(v.lo) & np.isfinite(v.hi) & (v.lo < v.hi)))
               and all(c.shape == (k,) for c, k in zip(v.centers, v.n_mf, strict=True))
               and v.consequents.shape == v.n_mf and np.isfinite(v.consequents).all()
               and all(np.all(np.diff(c) > 0) and c[0] == 0.0 and c[-1] == 1.0 for c in v.centers))
         if not ok:
-            msg = f"{where}: corrupt validator (shapes or centres inconsistent with inputs and n_mf)"
+            msg = f"{where}: corrupt validator (shapes, input ranges or centres inconsistent with inputs and n_mf)"
             raise CalibrationFileError(msg)
         return v
 
@@ -368,4 +387,7 @@ class FuzzyValidator:
         except ValueError as exc:
             msg = f"{p}: validator file is not valid JSON: {exc}"
             raise CalibrationFileError(msg) from exc
+        except RecursionError:
+            msg = f"{p}: validator file is nested too deeply to be a validator"
+            raise CalibrationFileError(msg) from None
         return cls.from_dict(d, where=str(p))

@@ -602,3 +602,78 @@ def test_a_driver_in_microtesla_is_calibrated_with_mag_unit(context: Context, cl
         assert abs(np.linalg.norm(mag_to_numpy(h.calibrated[-1])[1]) - cal.norm) < 0.05 * cal.norm
     finally:
         h.close()
+
+
+def test_an_overflowing_vector_is_dropped_and_the_node_lives(harness: Harness, stream: sim.Recording) -> None:
+    """Components of 1e200 or 1e308 overflow a squared norm: such a message is dropped and counted as any absurd
+    magnitude, never an exception out of the callback (it ended the node)."""
+    head = _head(stream, 100)
+    harness.publish(head)
+    last = float(head.t[-1])
+    harness.send(mag_msg(harness.c, last + 0.02 * (k + 1), v) for k, v in
+                 enumerate([(1e200, 0.0, 0.0), (1e308, 1e308, 1e308), (-2e154, 3e154, 1e154)]))
+    n = len(head) + 3
+    assert harness.spin_until(lambda: harness.node.statuses["mag"].samples_seen == n, 5.0)
+    assert harness.node.statuses["mag"].dropped.get("magnitude", 0) == 3
+    assert all(np.all(np.isfinite(mag_to_numpy(m)[1])) for m in harness.calibrated)
+
+
+def test_a_declared_change_withholds_the_calibrated_topic(context: Context, classes: MessageClasses,
+                                                           stream: sim.Recording, tmp_path: Path) -> None:
+    """Started with a calibration 30 % of the field off, the node declares a sensor change within seconds; once it
+    knows, it publishes nothing calibrated with the calibration it knows is wrong, until a new one fits."""
+    ref = SensorCalibrator("mag")
+    for t, v in zip(stream.t.tolist(), stream.raw, strict=True):
+        ref.push(t, v)
+    assert ref.calibration is not None
+    wrong = ref.calibration.replace(offset=ref.calibration.offset + np.array([0.3 * ref.calibration.norm, 0.0, 0.0]))
+    save_calibrations(tmp_path / "cal.yaml", {"mag": wrong})
+    h = Harness(context, classes, tmp_path / "cal.yaml")
+    events: list[tuple[str, float, int]] = []  # (kind, stamp, calibrated messages received when the node handled it)
+    handle = h.node._handle
+    h.node._handle = lambda ev: (events.append((ev.kind.value, ev.t, len(h.calibrated))), handle(ev))  # type: ignore[method-assign]
+    try:
+        h.publish(stream)
+        assert h.spin_until(lambda: h.node.statuses["mag"].samples_seen == len(stream), 5.0)
+        h.spin_until(lambda: False, 0.5)
+        changed = next(((t, k) for kind, t, k in events if kind == "changed"), None)
+        assert changed is not None, events
+        later = next(((t, k) for kind, t, k in events if kind == "calibrated" and t > changed[0]), None)
+        assert later is not None, events  # a tumble: the changed sensor is calibrated again within the minute
+        stamps = np.array([mag_to_numpy(m)[0] for m in h.calibrated])
+        assert np.all(stamps[:changed[1]] < changed[0] + 30.0) and changed[1] > 0  # the loaded calibration before
+        # from the node's hearing of the change (the worker may lag the harness's fast stream) until the new
+        # calibration: nothing (a few messages in flight to the peer aside)
+        withheld = stamps[changed[1] + 5:later[1]]
+        assert not len(withheld), (events, withheld[:5])
+        assert len(stamps) > later[1] and np.all(stamps[later[1] + 5:] > later[0])  # ... then the new one
+    finally:
+        h.close()
+
+
+def test_the_sensor_follows_the_frame_that_carries_the_topic(harness: Harness, stream: sim.Recording) -> None:
+    """Fuzzed on real rclpy: a first message with an empty frame_id, then imu_link, had 2954 of 3000 messages
+    ignored for good. Once 90 % of the last 200 messages carry one other frame the sensor follows it, its
+    calibration started afresh; a driver that changes its frame_id later is followed too."""
+    node = harness.node
+    harness.send(mag_msg(harness.c, 999.9 + 0.01 * k, stream.raw[0], frame_id="") for k in range(3))
+    harness.publish(stream)
+    assert node._traffic["mag"].frame == "imu_link"
+    assert harness.spin_until(lambda: node.calibrations["mag"] is not None, 10.0)
+    assert harness.spin_until(lambda: node.statuses["mag"].samples_seen >= len(stream) - 200, 5.0)
+    assert harness.calibrated and {m.header.frame_id for m in harness.calibrated} == {"imu_link"}
+    before = node.calibrations["mag"]
+    # the driver now says mag_link: the first 179 messages of it are another frame's, then the sensor follows it
+    later = replace(stream, t=stream.t + 100.0)
+    harness.send(mag_msg(harness.c, float(t), v, frame_id="mag_link") for t, v in zip(later.t[:179], later.raw[:179],
+                                                                                        strict=True))
+    assert node._traffic["mag"].frame == "imu_link" and node.calibrations["mag"] is before
+    harness.send(mag_msg(harness.c, float(t), v, frame_id="mag_link") for t, v in zip(later.t[179:], later.raw[179:],
+                                                                                        strict=True))
+    assert node._traffic["mag"].frame == "mag_link"
+    assert harness.spin_until(lambda: node.calibrations["mag"] is not None and node.calibrations["mag"] is not before, 10.0)
+    harness.status.clear()
+    harness.spin_until(lambda: bool(harness.status), 3.0)
+    kv = {x.key: x.value for x in harness.last_status().values}
+    assert kv["ignored_other_frames"] == "0" and kv["worker_backlog"] == "0", kv
+    assert int(kv["samples_seen"]) == len(later) - 179  # the worker counts from the takeover on

@@ -255,6 +255,12 @@ def _corrupt(d: dict, key: str, value: object) -> dict:
         (("consequents", [[0.0]]), "corrupt"),
         (("centers", [[0.0, 0.7, 0.5, 1.0, 1.0], [0.0, 1.0]]), "corrupt"),
         (("max_error", "x"), "corrupt"),
+        (("threshold", float("nan")), "threshold nan"),
+        (("threshold", -5.0), "threshold -5"),
+        (("input_high", [0.0, 0.0]), "input ranges"),  # input_low 0: every input a point
+        (("inputs", ["nope", "c_norm"]), "no coverage indicators"),
+        (("n_mf", [1_000_000_000, 1_000_000_000]), "at most 100000 rules"),  # 7 TiB of consequents
+        (("max_error", float("inf")), "finite"),
     ],
 )
 def test_load_refuses_bad_files(tmp_path: Path, change: tuple[str, object], match: str) -> None:
@@ -267,13 +273,17 @@ def test_load_refuses_bad_files(tmp_path: Path, change: tuple[str, object], matc
 
 
 def test_load_refuses_non_json_and_missing(tmp_path: Path) -> None:
-    """Garbage and absent files are refused with CalibrationFileError."""
+    """Garbage, absent and deeply nested files are refused with CalibrationFileError (nesting raised a
+    RecursionError, which ended the node at start)."""
     path = tmp_path / "v.json"
     path.write_text("{not json")
     with pytest.raises(CalibrationFileError, match="JSON"):
         FuzzyValidator.load(path)
     with pytest.raises(CalibrationFileError, match="cannot read"):
         FuzzyValidator.load(tmp_path / "absent.json")
+    path.write_text("[" * 200_000)
+    with pytest.raises(CalibrationFileError, match="nested too deeply"):
+        FuzzyValidator.load(path)
 
 
 def test_default_validator_ships_and_is_trained() -> None:
