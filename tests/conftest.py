@@ -14,7 +14,9 @@ import pytest
 from hypothesis import settings
 
 from ros_margcal.model.calibration import Calibration
+from ros_margcal.recordings.recording import Recording
 from ros_margcal.ros.environment import use_venv_ament_prefix
+from ros_margcal.sim.simulation import magnetometer_stream, random_sensor, tumbling, tumbling_motion
 
 # ROS 2 from the PyPI wheels needs AMENT_PREFIX_PATH (a sourced Jazzy has it); node tests on one machine must
 # never hear each other: a domain of this run's own (children inherit it) and discovery on this host only
@@ -103,3 +105,12 @@ def load_script(name: str) -> ModuleType:
     spec.loader.exec_module(module)
     mp.undo()
     return module
+
+
+def tumbling_imu(seconds: float, rate_hz: float, seed: int) -> tuple[Recording, Recording]:
+    """``(accelerometer, magnetometer)`` recordings of one tumbling IMU (the package's simulator), seeded."""
+    rng = np.random.default_rng(seed)
+    motion = tumbling_motion(seconds, rate_hz, rng)
+    acc = tumbling(random_sensor(rng, "accel"), seconds, rate_hz, rng, motion=motion)
+    mag = magnetometer_stream(random_sensor(rng, "mag"), seconds, rate_hz, rng, motion=motion)
+    return acc, mag

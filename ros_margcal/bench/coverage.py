@@ -219,6 +219,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true", help="short run (memory up to 10^6 samples)")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
+    if args.seed < 0:  # one line, as the CLI's (not numpy's traceback)
+        parser.exit(2, f"{parser.prog}: error: --seed must be a non-negative integer, got {args.seed}\n")
     rng = np.random.default_rng(args.seed)
     quick = args.quick
     all_ok = True

@@ -253,6 +253,8 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     if args.limit < 0 or args.jobs < 1:
         p.error(f"--limit must be >= 0 (0: every recording) and --jobs >= 1, got {args.limit} and {args.jobs}")
+    if args.seed < 0:  # one line, as the CLI's (not numpy's traceback in a worker)
+        p.exit(2, f"{p.prog}: error: --seed must be a non-negative integer, got {args.seed}\n")
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "rows.jsonl").unlink(missing_ok=True)
     design = _jobs(args.quick, args.seed)

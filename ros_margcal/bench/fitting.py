@@ -232,6 +232,10 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--runs", type=int, default=None, help="Monte Carlo runs per configuration (default 300, quick 100)")
     parser.add_argument("--seed", type=int, default=2013)
     args = parser.parse_args(argv)
+    if args.seed < 0:  # one line, as the CLI's (not numpy's traceback)
+        parser.exit(2, f"{parser.prog}: error: --seed must be a non-negative integer, got {args.seed}\n")
+    if args.runs is not None and args.runs < 1:  # -3 was a TypeError after a minute, 0 the default
+        parser.exit(2, f"{parser.prog}: error: --runs must be at least 1, got {args.runs}\n")
     runs = args.runs or (100 if args.quick else 300)
     mvee_runs = 10 if args.quick else 30
     t0 = time.perf_counter()

@@ -199,6 +199,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true", help="short streams (about 10 s in all)")
     parser.add_argument("--seed", type=int, default=7)
     args = parser.parse_args(argv)
+    if args.seed < 0:  # one line, as the CLI's (not numpy's traceback)
+        parser.exit(2, f"{parser.prog}: error: --seed must be a non-negative integer, got {args.seed}\n")
     duration = 60.0 if args.quick else 300.0
     rng = np.random.default_rng(args.seed)
     mag_truth = sim.random_sensor(rng, "mag")

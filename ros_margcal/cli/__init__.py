@@ -9,14 +9,15 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 
 from .. import __version__
-from ..model.errors import MargCalError, one_line
+from ..model.errors import ConfigError, MargCalError, one_line
 
-__all__ = ["main", "plot_file"]
+__all__ = ["check_paths", "main", "plot_file"]
 
 PLOT_SUFFIXES = (".png", ".pdf", ".svg", ".svgz", ".jpg", ".jpeg", ".tif", ".tiff", ".webp", ".eps", ".ps")
 """What ``--plot FILE`` may end with: the formats matplotlib's Agg backend writes (checked before the job runs)."""
@@ -33,6 +34,56 @@ def plot_file(value: str) -> Path:
         msg = f"{value!r} is a directory; give a file name such as {path / 'plot.png'}"
         raise argparse.ArgumentTypeError(msg)
     return path
+
+
+def check_paths(inputs: Sequence[tuple[str, Path | None]], outputs: Sequence[tuple[str, Path | None]], *,
+                folders: Sequence[str] = ()) -> None:
+    """Refuse at once (ConfigError, before any work) an output that is an input, lies inside an input folder (a
+    rosbag2 directory) or is another output, each named (label, path): the write would destroy what is read or
+    written; and an output whose folder cannot be written (found after a fit, as a temporary file's name, before).
+
+    ``folders``: the labels of outputs that are folders to fill (``diagnose --out``), not files."""
+    seen: list[tuple[str, Path, Path]] = []
+    read = [(label, path, _real(path)) for label, path in inputs if path is not None]
+    for label, path in outputs:
+        if path is None:
+            continue
+        real = _real(path)
+        for in_label, in_path, in_real in read:
+            if real == in_real:
+                raise ConfigError(f"{label} {path} is {in_label} {in_path}: writing it would destroy what is read; "
+                                  "choose another file")
+            if in_real.is_dir() and real.is_relative_to(in_real):
+                raise ConfigError(f"{label} {path} lies inside {in_label} {in_path}, a folder that is read: writing it "
+                                  "would change the recording; choose a file outside it")
+        for out_label, out_path, out_real in seen:
+            if real == out_real:
+                raise ConfigError(f"{label} {path} and {out_label} {out_path} are the same file: one would overwrite "
+                                  "the other; give two files")
+        _check_writable(label, path, folder=label in folders)
+        seen.append((label, path, real))
+
+
+def _real(path: Path) -> Path:
+    """``path`` absolute, its symbolic links followed (a link to the recording is the recording)."""
+    return Path(os.path.realpath(path))
+
+
+def _check_writable(label: str, path: Path, *, folder: bool) -> None:
+    """ConfigError unless ``path`` (a file, or a ``folder`` to create or fill) can be written: the nearest folder
+    that exists on its way must be a folder this process may write in."""
+    if folder and path.exists() and not path.is_dir():
+        raise ConfigError(f"{label} {path} is a file, not a folder; give a folder for the output")
+    if not folder and path.is_dir():
+        raise ConfigError(f"{label} {path} is a folder; give a file name such as {path / 'out'}")
+    near = Path(os.path.abspath(path if folder else path.parent))
+    while not near.exists() and near != near.parent:
+        near = near.parent
+    if not near.is_dir():
+        raise ConfigError(f"{label} {path}: {near} is not a folder")
+    if not os.access(near, os.W_OK | os.X_OK):
+        raise ConfigError(f"{label} {path}: cannot write in {near} (no permission, or a read-only file system)")
+
 
 _COMMAND_MODULES = ("simulate", "calibrate", "replay", "validator", "diagnose", "demo", "watch")
 BENCH_AREAS = ("fitting", "coverage", "pipeline", "diagnosis")

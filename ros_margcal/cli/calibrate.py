@@ -29,8 +29,10 @@ rails before it is written (``calibrate_guard``): otherwise nothing is written a
 ``EXIT_REFUSED`` (4); ``--force`` writes it with the reason in its ``method``. ``--set KEY=VALUE`` sets the
 options the guard rails, the gate and the fit use (``CALIBRATE_OPTIONS``; ``set_option``). ``--lat --lon``
 take a magnetometer's norm (unless ``--norm``) and the heading figures' inclination from the World Magnetic
-Model at that position (``position``). Exit codes:
-0 written, 2 bad input, 3 nothing to fit (static, too few samples), 4 refused by the guard rails.
+Model at that position (``position``). An existing ``-o`` file keeps the other sensors' calibrations (the node's file
+holds both; said); one that is no calibration file is refused unless ``--force``. An output that is the recording, lies
+inside it or is the other output, or whose folder cannot be written, is refused before the fit (``check_paths``).
+Exit codes: 0 written, 2 bad input, 3 nothing to fit (static, too few samples), 4 refused by the guard rails.
 """
 
 from __future__ import annotations
@@ -46,12 +48,20 @@ import numpy as np
 
 from ..coverage.gate import LEARN_CAP, InactivityGate
 from ..model.calibration import MODELS, Calibration
-from ..model.calibration_file import save_calibrations
-from ..model.errors import ConfigError, ConvergenceError, DegenerateDataError, RecordingError
+from ..model.calibration_file import load_calibrations, save_calibrations
+from ..model.errors import (
+    CalibrationFileError,
+    ConfigError,
+    ConvergenceError,
+    DegenerateDataError,
+    RecordingError,
+    one_line,
+)
 from ..model.fitting import LOSSES, METHODS, SUPPORTED, fit
 from ..recordings.read import read_recording
 from ..recordings.recording import Recording, continue_clock
 from ..stream.config import PipelineConfig, white_noise
+from . import check_paths
 from .calibrate_guard import EXIT_REFUSED, forced, norm_source, refusal
 from .fit_rescue import (
     MIN_SCALE,
@@ -82,11 +92,19 @@ every unit conversion (tesla to counts, m/s² to mg) is well inside, and beyond 
 products over- or underflow."""
 
 
-CALIBRATE_OPTIONS = frozenset({"max_iter", "gate_window_s", "gate_cv_threshold", "max_residual", "max_offset_ratio",
-                               "max_offset", "gain_min", "gain_max", "norm_min", "norm_max", "max_parameter_std",
-                               "max_heading_p95_deg", "drop_saturated", "near_level_tilt_deg"})
+CALIBRATE_OPTIONS = frozenset({"max_iter", "gate_window_s", "gate_cv_threshold", "gate_learn_noise", "max_residual",
+                               "max_offset_ratio", "max_offset", "gain_min", "gain_max", "norm_min", "norm_max",
+                               "max_parameter_std", "min_points", "max_heading_p95_deg", "drop_saturated",
+                               "near_level_tilt_deg", "change_threshold", "heading_inclination_deg", "reference_norm"})
 """The ``--set`` options calibrate uses: the fit's iterations, the accelerometer's gate, the guard rails, the rows on
-a saturated axis (``drop_saturated``), a magnetometer's ring held level (``near_level_tilt_deg``, as in the stream)."""
+a saturated axis (``drop_saturated``), a magnetometer's ring held level (``near_level_tilt_deg``, as in the stream),
+the offset change a rescue locates (``change_threshold``), the field the heading figures take as given (inclination,
+``reference_norm``: also an accelerometer's prior norm). The others are the stream's alone: said, and ignored (not
+passed to the limits, whose checks they would fail on)."""
+
+OWN_OPTIONS = {"method": "--method", "loss": "--loss", "model": "--model", "f_scale_rel": "--f-scale",
+               "latitude_deg": "--lat", "longitude_deg": "--lon", "altitude_m": "--alt", "field_year": "--date"}
+"""Streaming options whose calibrate counterpart is an option of its own (named when --set gives them)."""
 
 
 def register(subparsers: Any) -> None:
@@ -288,18 +306,45 @@ def _prior_norm(args: argparse.Namespace, cfg: PipelineConfig) -> tuple[float | 
     return None, "the readings' sphere radius"
 
 
+def _existing(args: argparse.Namespace) -> dict[str, Calibration]:
+    """The calibrations already in the ``-o`` file (the node's file holds every sensor's): the other sensors' are kept
+    when it is written. A file that is no calibration file is refused (ConfigError) unless --force, not destroyed."""
+    out: Path | None = args.output
+    if out is None or not out.is_file():  # none yet; a FIFO or a device the save refuses, naming it
+        return {}
+    try:
+        return load_calibrations(out)
+    except CalibrationFileError as exc:
+        if not args.force:
+            msg = (f"-o {out} exists and is no calibration file ({one_line(exc)}); choose another file, or --force "
+                   "to replace it")
+            raise ConfigError(msg) from exc
+        print(f"warning: -o {out} is no calibration file ({one_line(exc)}): replaced (--force)", file=sys.stderr)
+        return {}
+
+
+def _used_options(overrides: dict[str, Any]) -> dict[str, Any]:
+    """The ``--set`` options calibrate uses (``CALIBRATE_OPTIONS``); the others are said on stderr and ignored."""
+    idle = sorted(set(overrides) - CALIBRATE_OPTIONS)
+    own = [f"{k} (calibrate's is {OWN_OPTIONS[k]})" for k in idle if k in OWN_OPTIONS]
+    rest = [k for k in idle if k not in OWN_OPTIONS]
+    if rest or own:
+        what = ", ".join([*rest, *own])
+        print(f"note: --set {what}: streaming option(s) that calibrate does not use (replay does): ignored",
+              file=sys.stderr)
+    return {k: v for k, v in overrides.items() if k in CALIBRATE_OPTIONS}
+
+
 def run(args: argparse.Namespace) -> int:
     """Read the recording, fit, check against the guard rails, print, write YAML/JSON; returns the exit code."""
     sets = parse_sets(args.set)
+    check_paths([("the recording", args.input)], [("-o", args.output), ("--json", args.json)])
+    position = position_options(args)  # before any work, in the options' own names
+    args.existing = _existing(args)
     rec = read_recording(args.input, sensor=args.sensor, topic=args.topic, order="file")
     n_read, last_stamp = len(rec.t), float(rec.t[-1]) if len(rec.t) else None
     rec, sensor, unit = prepare(_in_file_order(rec), args.sensor, args.unit, str(args.input))
-    overrides = sensor_options(sets, sensor)
-    idle = sorted(set(overrides) - CALIBRATE_OPTIONS)
-    if idle:
-        print(f"note: --set {', '.join(idle)}: streaming option(s) that calibrate does not use (replay does)",
-              file=sys.stderr)
-    position = position_options(args)
+    overrides = _used_options(sensor_options(sets, sensor))
     used = {k: v for k, v in overrides.items() if not (position and k == "reference_norm")}  # calibrate: --norm only
     cfg = config_for(sensor, unit, **used, **position)
     n_clean = len(rec)  # after the all-zero rows
@@ -377,8 +422,15 @@ def _guarded_write(args: argparse.Namespace, cfg: PipelineConfig, cals: dict[str
 
 
 def _write(args: argparse.Namespace, cals: dict[str, Calibration], results: list[dict[str, Any]]) -> None:
+    """Write the calibrations (with the other sensors' of an existing ``-o`` file, said) and the JSON."""
     if args.output is not None:
-        path = save_calibrations(args.output, cals)
+        sensors = {s for s in (*(c.sensor for c in cals.values()), *(k.partition("_")[0] for k in cals)) if s}
+        kept = {k: c for k, c in getattr(args, "existing", {}).items()
+                if k.partition("_")[0].partition(":")[0] not in sensors and c.sensor not in sensors}
+        if kept:
+            print(f"note: {args.output} also held {', '.join(kept)}: kept, only {', '.join(sorted(sensors))} replaced",
+                  file=sys.stderr)
+        path = save_calibrations(args.output, {**kept, **cals})
         print(f"wrote {path}")
     if args.json is not None:
         d = results[0] if len(results) == 1 else {"calibrations": results}

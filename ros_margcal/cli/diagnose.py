@@ -7,6 +7,9 @@ Examples::
     margcal diagnose full_sphere.csv --sensor mag --rest-recording static_10min.csv --holdout 0.5
     margcal diagnose run.mcap --sensor accel --norm 9.80665 --out diag/
     margcal diagnose-benchmark --quick
+
+A recording too short or static to diagnose exits 3 with the reason and no report (as ``calibrate``'s nothing to
+fit); a ``--rest-recording`` must be of the same sensor in the recording's unit, with enough samples.
 """
 
 from __future__ import annotations
@@ -21,9 +24,11 @@ from ..bench.diagnosis import main
 from ..diagnosis import check_options, diagnose, diagnose_holdout, rest_noise, summary, validator_downstream, write_report
 from ..diagnosis.progress import CommandProgress, command_steps
 from ..diagnosis.twin import FIT_ERRORS
-from ..model.errors import MargCalError
+from ..diagnosis.twin_fits import MIN_SAMPLES, static_reason
+from ..model.errors import ConfigError, MargCalError, one_line
 from ..recordings.read import read_recording
 from ..validation.shipped import load_default_validator
+from . import check_paths
 from .raw_units import prepare
 
 __all__ = ["register", "run", "run_benchmark"]
@@ -81,19 +86,57 @@ def _read(path: Path, sensor: str | None, topic: str | None) -> Any:
     return read_recording(path, sensor=sensor, topic=topic, order="file")
 
 
+def _rest_noise(path: Path, sensor: str, unit: str) -> float:
+    """The white noise at rest of ``--rest-recording`` (``rest_noise``, raw units), checked first (ConfigError): a
+    recording of the same sensor in the recording's unit (the checks of ``--unit``: an accelerometer in m/s^2 is no
+    tesla magnetometer's rest), with enough samples for an estimate, whose readings vary."""
+    where = f"--rest-recording {path}"
+    try:
+        rec = _read(path, sensor, None)
+    except MargCalError as exc:
+        raise ConfigError(f"{where}: {one_line(exc)}") from exc
+    try:
+        rest, _, _ = prepare(rec, sensor, unit, "the rest recording")
+    except MargCalError as exc:
+        raise ConfigError(f"{where} is no rest recording of this {sensor} in {unit or 'its unit'} (the recording's): "
+                          f"{one_line(exc)}") from exc
+    if len(rest) < MIN_SAMPLES:
+        raise ConfigError(f"{where}: {len(rest)} sample(s); a rest noise estimate needs at least {MIN_SAMPLES}")
+    noise = rest_noise(rest.raw)
+    if not noise > 0.0:
+        raise ConfigError(f"{where}: its readings do not vary (rest noise 0): no noise estimate; a sensor quieter than "
+                          "one step of its output: give --rest-noise (about one step / sqrt(12))")
+    return noise
+
+
+def _undiagnosable(raw: Any) -> str:
+    """Why a recording cannot be diagnosed ("" when it can): too few samples, or static (``twin_fits.static_reason``):
+    it has no twin, as calibrate has nothing to fit."""
+    if len(raw) < MIN_SAMPLES:
+        return f"a diagnosis needs at least {MIN_SAMPLES} samples, got {len(raw)}"
+    return static_reason(raw)
+
+
 def run(args: argparse.Namespace) -> int:
-    """Run one diagnosis and write its report; the time printed is the whole command's wall time."""
+    """Run one diagnosis and write its report; the time printed is the whole command's wall time. Exit code 3 (no
+    report) for a recording that cannot be diagnosed (``_undiagnosable``)."""
 
     t0 = time.monotonic()
     # every option up front (exit 2, one line), not after minutes of diagnosis
     n_sets = args.retrain_sets if args.retrain_sets is not None else QUICK_RETRAIN_SETS if args.quick else RETRAIN_SETS
     check_options(norm=args.norm, rest_noise=args.rest_noise, n_fit=args.n_fit, shape_tolerance=args.shape_tolerance,
                   split=args.holdout, n_sets=n_sets, cli=True)
-    rec, sensor, _ = prepare(_read(args.input, args.sensor, args.topic), args.sensor, args.unit, str(args.input))
+    check_paths([("the recording", args.input), ("the --rest-recording", args.rest_recording)], [("--out", args.out)],
+                folders=("--out",))
+    rec, sensor, unit = prepare(_read(args.input, args.sensor, args.topic), args.sensor, args.unit, str(args.input))
     noise = args.rest_noise
     if args.rest_recording is not None:
-        noise = rest_noise(_read(args.rest_recording, sensor, None).raw)
+        noise = _rest_noise(args.rest_recording, sensor, unit)
         print(f"rest noise from {args.rest_recording}: {noise:.4g} raw units", file=sys.stderr)
+    why = _undiagnosable(rec.raw)
+    if why:
+        print(f"margcal diagnose: cannot diagnose {args.input}: {why}; no report written", file=sys.stderr)
+        return 3
     validator = None
     if not args.no_validator:
 

@@ -47,6 +47,7 @@ from ..model.errors import ConvergenceError, DegenerateDataError, InputError
 from ..model.fitting import fit
 from ..model.fitting_prior import PriorFit, broad_prior, fit_with_prior
 from ..model.heading import UNDETERMINED_DEG, format_bound, heading_p95_quantile, heading_p95_typical
+from ..recordings import MAX_STAMP_S
 from ..stream.config import STATIC_SPREAD, PipelineConfig, plausibility, relative_spread, residual_limit
 from ..stream.observable import (
     DEFAULT_INCLINATION_DEG,
@@ -331,7 +332,8 @@ def _plain_fit(t: Array, points: Array, kw: dict[str, object]) -> tuple[Calibrat
 def _static_ends(t: Array, points: Array) -> tuple[int, int]:
     """``(lo, hi)``: the stretch without its static runs at either end (``STATIC_WINDOW_S`` windows whose readings stay
     within ``STATIC_SPREAD`` of their mean; a window of fewer than 3 readings counts as turning)."""
-    w = np.floor((t - t[0]) / STATIC_WINDOW_S).astype(np.intp)
+    tc = np.clip(t, -MAX_STAMP_S, MAX_STAMP_S)  # a stray 1e23 stamp: a finite window index, no cast warning
+    w = np.floor((tc - tc[0]) / STATIC_WINDOW_S).astype(np.intp)
     _, starts = np.unique(w, return_index=True)
     ends = np.r_[starts[1:], len(t)]
     turning = [b - a < 3 or relative_spread(points[a:b]) >= STATIC_SPREAD for a, b in zip(starts, ends, strict=True)]

@@ -17,7 +17,7 @@ import numpy as np
 from ..model.calibration import Calibration
 from ..model.errors import ConfigError
 from ..model.geomag import decimal_year
-from ..stream.config import PipelineConfig
+from ..stream.config import FIELD_SPECS, PipelineConfig
 
 __all__ = ["RADIUS_NOTE_REL", "add_position_args", "field_line", "position_options", "radius_note"]
 
@@ -49,8 +49,9 @@ def position_options(args: argparse.Namespace) -> dict[str, Any]:
         raise ConfigError(f"--lat must be a latitude in [-90, 90] deg, got {args.lat}")
     if not (math.isfinite(args.lon) and -180.0 <= args.lon <= 360.0):
         raise ConfigError(f"--lon must be a longitude in [-180, 360] deg east, got {args.lon}")
-    if not math.isfinite(args.alt):
-        raise ConfigError(f"--alt must be a finite number of metres, got {args.alt}")
+    spec = FIELD_SPECS["altitude_m"]
+    if not (math.isfinite(args.alt) and spec.lo <= args.alt <= spec.hi):  # the config's range, in the option's name
+        raise ConfigError(f"--alt must be an altitude in [{spec.lo:g}, {spec.hi:g}] m, got {args.alt:g}")
     opts: dict[str, Any] = {"latitude_deg": args.lat, "longitude_deg": args.lon, "altitude_m": args.alt}
     if args.date is not None:
         try:

@@ -13,7 +13,8 @@ and the heading figures' inclination (``position``).
 
 ``margcal replay --example`` runs the recording shipped with the package (a tumbling IMU with still
 periods and a hard-iron jump half way, made by ``scripts/make_example.py``) and compares the result
-with its known truth.
+with its known truth. A ``--truth`` file is read and checked before the replay: a truth in another known unit
+is converted to the recording's, one in an unknown unit or of another sensor refused, a sensor it lacks said.
 """
 
 from __future__ import annotations
@@ -39,9 +40,10 @@ from ..stream.calibrator import SensorCalibrator
 from ..stream.config import PipelineConfig
 from ..stream.replay import replay, replay_plan
 from ..stream.status import Status
+from ..stream.units import unit_scale
 from ..stream.view import coverage_view
 from ..validation.shipped import load_validator
-from . import plot_file
+from . import check_paths, plot_file
 from .position import add_position_args, field_line, position_options
 from .raw_units import prepare, resolve_unit
 from .set_option import SET_HELP, parse_sets, sensor_options
@@ -92,6 +94,33 @@ def _truth_for(truth: dict[str, Calibration], sensor: str) -> Calibration | None
         return truth[sensor]
     cands = [c for k, c in truth.items() if k.startswith(f"{sensor}_")]
     return max(cands, key=lambda c: c.stamp) if cands else None
+
+
+def _checked_truth(truth: dict[str, Calibration], path: Path, plan: dict[str, tuple[str, str]]) -> dict[str, Calibration]:
+    """Each replayed calibrator's truth in its recording's unit, checked before the replay: a known unit converted
+    (the offset and norm scale, W is a ratio of the same unit), an unknown or unconvertible one and an entry of
+    another sensor refused (ConfigError); a calibrator the file has no truth for said on stderr."""
+    out: dict[str, Calibration] = {}
+    for name, (sensor, unit) in plan.items():
+        ref = _truth_for(truth, name)
+        if ref is None:
+            print(f"note: the truth file {path} holds no calibration for {name} (it has {', '.join(truth) or 'none'}): "
+                  "no comparison", file=sys.stderr)
+            continue
+        if ref.sensor and ref.sensor != sensor:
+            raise ConfigError(f"the truth file {path}: its calibration for {name} is of sensor {ref.sensor!r}, "
+                              f"not {sensor!r}")
+        if ref.unit and unit and ref.unit != unit:
+            have, want = unit_scale(sensor, ref.unit), unit_scale(sensor, unit)
+            if have is None or want is None:
+                raise ConfigError(f"the truth file {path}: its {name} calibration is in {ref.unit!r}, the recording in "
+                                  f"{unit!r}: no known conversion between them; give a truth in {unit!r}")
+            f = have / want
+            print(f"truth of {name}: converted from {ref.unit} to {unit}", file=sys.stderr)
+            ref = ref.replace(offset=ref.offset * f, norm=ref.norm * f, unit=unit, stats=None, covariance=None,
+                              parameter_names=())
+        out[name] = ref
+    return out
 
 
 def _compare(cal: Calibration, truth: Calibration) -> dict[str, float]:
@@ -231,6 +260,9 @@ def _options(sets: dict[str, dict[str, Any]], plan: dict[str, tuple[str, str]], 
 def run(args: argparse.Namespace) -> int:
     """Entry of ``margcal replay``."""
     truth_path: Path | None = args.truth
+    if args.example and args.recording is not None:
+        msg = f"give a RECORDING or --example, not both (--example replays the shipped recording, not {args.recording})"
+        raise ConfigError(msg)
     if args.example:
         path, example_truth = example_paths()
         truth_path = truth_path or example_truth
@@ -242,9 +274,14 @@ def run(args: argparse.Namespace) -> int:
     if not math.isfinite(args.status_every) or args.status_every < 0:
         msg = f"--status-every must be >= 0, got {args.status_every}"
         raise ConfigError(msg)
+    check_paths([("the recording", path), ("the --truth file", truth_path), ("the --validator file", args.validator)],
+                [("--json", args.json), ("--plot", args.plot)])
+    position = position_options(args)  # before any work: a bad --lat/--lon/--alt/--date costs no replay
     sets = parse_sets(args.set)
+    truth = load_calibrations(truth_path) if truth_path is not None else {}  # a bad file costs no replay
     sensor, unit, plan = _checked_plan(path, args.sensor, args.unit, args.topic)
-    options = _options(sets, plan, args.full_only, position_options(args))
+    options = _options(sets, plan, args.full_only, position)
+    truths = _checked_truth(truth, truth_path, plan) if truth_path is not None else {}
     validator = load_validator(args.validator) if args.validator is not None else None
     print(f"replaying {path}" + (f" with the validator {args.validator}" if validator is not None else ""))
     printer = None if args.quiet else print
@@ -252,7 +289,6 @@ def run(args: argparse.Namespace) -> int:
                     validator=validator, topics=args.topic, sensor_options=options)
     cals: dict[str, SensorCalibrator] = result["calibrators"]
     topics: dict[str, str] = result.get("topics", {})
-    truth = load_calibrations(truth_path) if truth_path is not None else {}
     summary: dict[str, Any] = {}
     print(f"\nfinal state after {result['messages']} messages:")
     for s, c in sorted(cals.items()):
@@ -275,7 +311,7 @@ def run(args: argparse.Namespace) -> int:
             entry["heading_inclination_deg"] = st.heading_inclination_deg
             entry["partial"] = {"partial": st.partial, "updated": list(st.updated_parameters),
                                 "from_prior": list(st.prior_parameters), "tilt_seen_deg": st.tilt_seen_deg}
-            ref = _truth_for(truth, s)
+            ref = truths.get(s)
             if ref is not None:
                 cmp_ = _compare(c.calibration, ref)
                 entry["truth_comparison"] = cmp_

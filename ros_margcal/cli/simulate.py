@@ -34,6 +34,7 @@ from ..sim.simulation import (
     tumbling,
     tumbling_motion,
 )
+from . import check_paths
 
 __all__ = ["register", "run"]
 
@@ -158,6 +159,13 @@ def _make(args: argparse.Namespace, rng: np.random.Generator) -> dict[str, Recor
 MAX_SAMPLES = 10_000_000
 """The most samples ``simulate`` writes per sensor (--n, or --duration x --rate): 240 MB of readings."""
 
+EFFECT_LIMITS = {"noise": 1.0, "quantization": 1.0, "misalignment": 180.0, "bias_drift": 1.0, "temperature": 1.0,
+                 "disturbance": 10.0, "hard_iron_jump": 10.0}
+"""The largest magnitude ``--effect`` takes for the effects the registry leaves unbounded (``Effect.limit`` inf), in
+their units: noise and an LSB step below the field (as ``--noise``), a turn of at most 180 deg, a drift of a field
+per minute or per K, a burst or step of ten fields (as ``--jump-size``). Beyond them the readings are NaN, zero or
+1e296: no sensor's."""
+
 
 def _check_sizes(args: argparse.Namespace) -> None:
     """Refuse absurd sizes, rates, noise and seeds at once, in the options' own words (not a numpy error, an
@@ -174,6 +182,11 @@ def _check_sizes(args: argparse.Namespace) -> None:
         raise ConfigError(f"--jump-size must be a fraction of the field norm in [0, 10], got {args.jump_size}")
     if args.jump_at is not None and not math.isfinite(args.jump_at):
         raise ConfigError(f"--jump-at must be a finite time in seconds, got {args.jump_at}")
+    for name, m in args.effect:  # the registry's own limits (Effect.limit) are checked by the simulator
+        top = EFFECT_LIMITS.get(name, math.inf)
+        if not (math.isfinite(m) and 0.0 <= m <= top):
+            within = f"in [0, {top:g}] ({EFFECTS[name].magnitude_unit})" if math.isfinite(top) else ">= 0"
+            raise ConfigError(f"effect {name} magnitude must be {within}, got {m:g}")
     if args.pattern in PATTERNS:
         if args.n > MAX_SAMPLES:
             raise ConfigError(f"-n must be at most {MAX_SAMPLES:.0e} samples, got {args.n}")
@@ -182,17 +195,23 @@ def _check_sizes(args: argparse.Namespace) -> None:
     n = args.duration * rate
     if not 2.0 <= n <= MAX_SAMPLES:
         raise ConfigError(f"--duration x --rate gives {n:.3g} samples; a time series needs 2 to {MAX_SAMPLES:.0e}")
+    mag_rate = rate / 2 if args.sensor == "imu" else rate  # the magnetometer's samples (motion.sample_times)
+    last = (max(2, round(args.duration * mag_rate)) - 1) / mag_rate
+    if args.jump_at is not None and args.sensor != "accel" and not 0.0 < args.jump_at < last:  # accel: refused in _make
+        raise ConfigError(f"--jump-at must be a time within the recording (after 0 and before {last:g} s), got "
+                          f"{args.jump_at:g}: the jump would not happen, yet the truth file would say mag_before/mag_after")
 
 
 def run(args: argparse.Namespace) -> int:
     """Simulate and write; returns the exit code."""
     _check_sizes(args)
-    for name, m in args.effect:
-        if not (math.isfinite(m) and m >= 0):
-            msg = f"effect {name} magnitude must be >= 0, got {m}"
-            raise ConfigError(msg)
     out: Path = args.output
     is_csv = out.suffix.lower() == ".csv"
+    bag_dir = not is_csv and out.suffix not in BAG_SUFFIXES
+    check_paths([], [("the output", out), ("--truth", args.truth)], folders=("the output",) if bag_dir else ())
+    if args.truth is not None and args.truth.exists() and not args.force:
+        msg = f"--truth {args.truth} exists already; pass --force to replace it"
+        raise ConfigError(msg)
     if is_csv and args.sensor == "imu":
         msg = "a CSV holds one sensor; use --sensor mag or accel, or write a bag (.mcap/.db3)"
         raise ConfigError(msg)

@@ -27,7 +27,7 @@ from ..validation.baselines import BASELINES
 from ..validation.fuzzy import FuzzyValidator
 from ..validation.roc import evaluate_threshold, roc_auc, roc_curve
 from ..validation.threshold import DEFAULT_MAX_ERROR, DEFAULT_MAX_FPR, ThresholdValidator
-from . import plot_file
+from . import check_paths, plot_file
 
 __all__ = ["evaluate", "register", "train_fuzzy"]
 
@@ -230,6 +230,15 @@ def plot_roc(res: dict[str, Any], path: Path) -> None:
 # -- subcommands -----------------------------------------------------------------------------------
 
 
+def _check(args: argparse.Namespace, outputs: list[tuple[str, Path | None]]) -> None:
+    """The seed (numpy refuses a negative one with a traceback) and the paths (``check_paths``), before any work."""
+    if args.seed < 0:
+        raise ConfigError(f"--seed must be a non-negative integer, got {args.seed}")
+    corpus = getattr(args, "corpus", None)
+    check_paths([("the --corpus", None if corpus is None else Path(corpus))],
+                [(label, None if path is None else Path(path)) for label, path in outputs])
+
+
 def _corpus_from(args: argparse.Namespace) -> Corpus:
     if getattr(args, "corpus", None):
         return Corpus.load(args.corpus)
@@ -237,6 +246,8 @@ def _corpus_from(args: argparse.Namespace) -> Corpus:
 
 
 def _run_build(args: argparse.Namespace) -> int:
+    out = Path(args.out)
+    _check(args, [("--out", out if out.suffix == ".npz" else out.with_name(out.name + ".npz"))])  # what Corpus.save writes
     c = build_corpus(args.n_sets, args.seed, progress=True)
     path = c.save(args.out)
     good = c.good(args.max_error)
@@ -246,6 +257,7 @@ def _run_build(args: argparse.Namespace) -> int:
 
 
 def _run_train(args: argparse.Namespace) -> int:
+    _check(args, [("--out", args.out)])
     c = _corpus_from(args)
     inputs = tuple(args.inputs.split(","))
     v = train_fuzzy(c, inputs, n_mf=args.n_mf, repeats=args.repeats, max_error=args.max_error, max_fpr=args.max_fpr,
@@ -259,6 +271,7 @@ def _run_train(args: argparse.Namespace) -> int:
 
 
 def _run_evaluate(args: argparse.Namespace) -> int:
+    _check(args, [("--json", args.json), ("--plot", args.plot)])
     c = _corpus_from(args)
     pairs = None
     if args.pairs:

@@ -56,7 +56,9 @@ A sensor whose noise is low-pass filtered (successive samples correlated) is nev
 the configured thresholds. The learning costs one pass over the window per window (O(1) amortised).
 
 Bad input never raises: non-finite or malformed samples, repeated or backwards stamps are dropped and
-counted; a gap longer than the window (or a jump back by more than a window) resets the window.
+counted; a gap longer than the window (or a jump back by more than a window) resets the window. Stamps
+are compared by their differences, so stamps whose float spacing exceeds the window (nanoseconds since
+the epoch read as seconds) are repeated stamps or gaps, never an empty window.
 """
 
 from __future__ import annotations
@@ -310,8 +312,10 @@ class InactivityGate:
         win.append((t, x, y, z, n, high))
         self._add(x, y, z, n, 1.0)
         self._n_gyro_high += high
-        t_min = t - self.window_s + _STAMP_TOL  # a window of window_s holds window_s x rate samples, not one more
-        while win[0][0] <= t_min:
+        # a window of window_s holds window_s x rate samples, not one more; stamp differences, not t - window_s, which
+        # rounds back to t where float spacing exceeds the window (ns epoch stamps, 1.7e18) and emptied the window
+        edge = self.window_s - _STAMP_TOL
+        while t - win[0][0] >= edge:
             _, ox, oy, oz, on, oh = win.popleft()
             self._add(ox, oy, oz, on, -1.0)
             self._n_gyro_high -= oh
@@ -319,8 +323,7 @@ class InactivityGate:
         short = self._short
         short.append((t, x, y, z))
         self._short_add(x - rx, y - ry, z - rz, 1.0)
-        t_min = t - self.short_s
-        while short[0][0] < t_min:
+        while t - short[0][0] > self.short_s:
             _, ox, oy, oz = short.popleft()
             self._short_add(ox - rx, oy - ry, oz - rz, -1.0)
         self._since_resum += 1

@@ -44,7 +44,8 @@ from numpy.typing import NDArray
 from .calibration import Calibration
 from .errors import CalibrationFileError, one_line
 
-__all__ = ["calibration_from_yaml", "calibration_to_yaml", "load_calibrations", "save_calibrations", "write_temp"]
+__all__ = ["calibration_from_yaml", "calibration_to_yaml", "load_calibrations", "read_small_text", "save_calibrations",
+           "write_temp"]
 
 Array = NDArray[np.float64]
 
@@ -55,14 +56,28 @@ _CHECKSUM = re.compile(r"^# sha256: ([0-9a-f]{64})[ \t]*\r?$", re.MULTILINE)
 _STALE_TMP_S = 60.0  # a save takes milliseconds: an older temp file of the same target is debris of a killed save
 
 
+_FLOAT_12 = re.compile(r"^[-+]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)[eE][-+]?[0-9]+$")
+"""YAML 1.2's floats with an exponent (``5e-05``, ``1.0e5``), which YAML 1.1 (PyYAML) reads as strings but ROS 2's
+parser reads as numbers; YAML 1.1 already reads the others (``0.5``, ``1.0e-05``)."""
+
+
 class _StrictLoader(yaml.SafeLoader):
-    """SafeLoader refusing aliases: a calibration file never has any, and an alias bomb expands when read."""
+    """SafeLoader refusing aliases (a calibration file never has any, and an alias bomb expands when read) and
+    reading plain scalars in YAML 1.2's float syntax as floats, as ROS 2 does (a quoted one stays a string)."""
 
     def compose_node(self, parent: Any, index: Any) -> Any:
         if self.check_event(yaml.AliasEvent):
             mark = self.peek_event().start_mark
             raise yaml.composer.ComposerError(None, None, "YAML aliases (*name) are not allowed here", mark)
         return super().compose_node(parent, index)
+
+
+class _Dumper(yaml.SafeDumper):
+    """SafeDumper that quotes a string in YAML 1.2's float syntax (``'1e5'``), so ``_StrictLoader`` reads a string back."""
+
+
+_StrictLoader.add_implicit_resolver("tag:yaml.org,2002:float", _FLOAT_12, list("-+0123456789."))
+_Dumper.add_implicit_resolver("tag:yaml.org,2002:float", _FLOAT_12, list("-+0123456789."))
 
 
 
@@ -85,7 +100,7 @@ def _load_yaml(text: str, where: str) -> Any:
 
 def _dump(cals: dict[str, Calibration], node: str) -> str:
     doc = {node: {"ros__parameters": {"calibration": {k: c.to_dict() for k, c in cals.items()}}}}
-    text = yaml.safe_dump(doc, sort_keys=False, default_flow_style=None)
+    text = yaml.dump(doc, Dumper=_Dumper, sort_keys=False, default_flow_style=None)
     return f"{text}# sha256: {_digest(_load_yaml(text, '<dump>'))}\n"  # digest of what a reader will parse
 
 
@@ -270,32 +285,33 @@ def write_temp(target: Path, text: str, prefix: str | None = None) -> Path:
     return Path(tmp)
 
 
-def _read_text(p: Path, where: str) -> str:
-    """The file's text: a regular file (never a FIFO or device, which could block or never end) of at most 1 MiB."""
+def read_small_text(p: Path, where: str, what: str = "calibration file", limit: int = MAX_BYTES) -> str:
+    """The text of ``what`` at ``p``: a regular file (never a FIFO or device, which could block or never end) of at most
+    ``limit`` bytes; CalibrationFileError naming it otherwise (a calibration file, a validator file)."""
     try:
         fd = os.open(p, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0))
     except (OSError, ValueError) as exc:  # ValueError: a NUL in the path
-        msg = f"cannot read calibration file {where}: {one_line(str(exc))}"
+        msg = f"cannot read {what} {where}: {one_line(str(exc))}"
         raise CalibrationFileError(msg) from exc
     info = os.fstat(fd)
-    if not stat.S_ISREG(info.st_mode) or info.st_size > MAX_BYTES:
+    if not stat.S_ISREG(info.st_mode) or info.st_size > limit:
         os.close(fd)
-        why = "not a regular file" if not stat.S_ISREG(info.st_mode) else f"{info.st_size} bytes, more than {MAX_BYTES}"
-        msg = f"cannot read calibration file {where}: {why}"
+        why = "not a regular file" if not stat.S_ISREG(info.st_mode) else f"{info.st_size} bytes, more than {limit}"
+        msg = f"cannot read {what} {where}: {why}"
         raise CalibrationFileError(msg)
     with os.fdopen(fd, "rb") as fh:
         try:
-            data = fh.read(MAX_BYTES + 1)
+            data = fh.read(limit + 1)
         except OSError as exc:
-            msg = f"cannot read calibration file {where}: {one_line(str(exc))}"
+            msg = f"cannot read {what} {where}: {one_line(str(exc))}"
             raise CalibrationFileError(msg) from exc
-    if len(data) > MAX_BYTES:
-        msg = f"cannot read calibration file {where}: more than {MAX_BYTES} bytes"
+    if len(data) > limit:
+        msg = f"cannot read {what} {where}: more than {limit} bytes"
         raise CalibrationFileError(msg)
     try:
         return data.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
-        msg = f"cannot read calibration file {where}: not UTF-8 ({exc})"
+        msg = f"cannot read {what} {where}: not UTF-8 ({exc})"
         raise CalibrationFileError(msg) from exc
 
 
@@ -307,7 +323,7 @@ def load_calibrations(path: str | os.PathLike[str]) -> dict[str, Calibration]:
         msg = f"calibration file path must be a path, got {type(path).__name__}"
         raise CalibrationFileError(msg) from exc
     where = str(p) if str(p).isprintable() else repr(str(p))
-    return _parse(_read_text(p, where), where)
+    return _parse(read_small_text(p, where), where)
 
 
 def calibration_to_yaml(cal: Calibration, node: str = "margcal") -> str:

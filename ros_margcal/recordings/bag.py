@@ -8,7 +8,10 @@ with ``angular_velocity`` as gyro) and ``sensor_msgs/msg/MagneticField`` a magne
 (tesla), per REP-145/REP-103. The time of a sample is its header stamp, or the bag's receive time
 when the stamp is zero (unset). ``sensor_msgs/msg/Temperature`` on ``<topic>/temperature`` is
 interpolated onto the samples. A bag is either a rosbag2
-directory (``metadata.yaml`` plus storage files) or a bare ``.mcap`` / ``.db3`` storage file.
+directory (``metadata.yaml`` plus storage files) or a bare ``.mcap`` / ``.db3`` storage file, told by its
+first bytes (the MCAP magic, the SQLite header) or else by its suffix in any case (``IMU.MCAP``); rosbags
+picks the storage by a lower-case suffix, so a file named otherwise is opened through a link named so.
+A directory without ``metadata.yaml`` is refused naming the storage file in it to pass instead.
 
 Time order: offline readers refuse a recording whose times go backwards (``RecordingError`` naming
 the first offending row and the count) unless ``sort=True`` (``order="sort"``) is given, which sorts the
@@ -38,7 +41,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..model.errors import RecordingError, one_line
-from .recording import Recording, check_order
+from .recording import Recording, check_order, check_stamps
 
 __all__ = ["BAG_SUFFIXES", "FRAME_ID", "BagMessage", "bag_topics", "is_bag", "iter_bag_messages", "write_bag"]
 
@@ -48,6 +51,8 @@ Array = NDArray[np.float64]
 
 FRAME_ID = "imu_link"
 BAG_SUFFIXES = (".mcap", ".db3")
+_MAGIC = ((b"\x89MCAP", ".mcap"), (b"SQLite format 3\x00", ".db3"))
+"""A storage file's first bytes and the suffix rosbags reads it by."""
 IMU = "sensor_msgs/msg/Imu"
 MAG = "sensor_msgs/msg/MagneticField"
 TEMPERATURE = "sensor_msgs/msg/Temperature"
@@ -86,9 +91,35 @@ def _typestore() -> Any:
     return get_typestore(Stores.ROS2_JAZZY)
 
 
+def _storage_suffix(path: Path) -> str:
+    """The suffix rosbags reads a bare storage file by: its content's (first bytes), else its own in lower case
+    if that is .mcap or .db3, else "" (no storage file: a CSV, or a file that cannot be read)."""
+    if path.is_file():  # a regular file only: reading a FIFO would block
+        try:
+            with path.open("rb") as fh:
+                head = fh.read(16)
+        except OSError:
+            head = b""
+        for magic, suffix in _MAGIC:
+            if head.startswith(magic):
+                return suffix
+    suffix = path.suffix.lower()
+    return suffix if suffix in BAG_SUFFIXES else ""
+
+
 def is_bag(path: Path) -> bool:
-    """A rosbag2 directory or a bare .mcap / .db3 storage file (by the path; the reader checks the content)."""
-    return path.is_dir() or path.suffix in BAG_SUFFIXES
+    """A rosbag2 directory or a bare .mcap / .db3 storage file (by its first bytes, else its suffix in any case)."""
+    return path.is_dir() or bool(_storage_suffix(path))
+
+
+def _no_metadata(path: Path) -> str:
+    """Why a directory without metadata.yaml is no bag, and the storage file in it to pass instead."""
+    found = sorted(str(f) for f in path.iterdir() if f.is_file() and _storage_suffix(f))
+    if found:
+        more = f" (or one of the {len(found) - 1} others)" if len(found) > 1 else ""
+        return f"{path} is a directory without metadata.yaml, so no rosbag2 bag; pass its storage file: {found[0]}{more}"
+    return (f"{path} is a directory without metadata.yaml and has no .mcap or .db3 file: no recording; pass a rosbag2 "
+            "bag directory, a .mcap / .db3 file or a CSV file")
 
 
 def _open_reader(path: Path) -> Any:
@@ -97,21 +128,39 @@ def _open_reader(path: Path) -> Any:
     if not path.exists():
         msg = f"recording {path} does not exist"
         raise RecordingError(msg)
+    if path.is_dir() and not (path / "metadata.yaml").exists():
+        raise RecordingError(_no_metadata(path))
+    suffix = "" if path.is_dir() else _storage_suffix(path)
+    link_dir = None
     try:
-        reader = Reader(path)
+        opened = path
+        if suffix and path.suffix != suffix:  # rosbags picks the storage by a lower-case suffix: a link named so
+            link_dir = Path(tempfile.mkdtemp(prefix=".margcal-bag-"))
+            opened = link_dir / f"bag{suffix}"
+            opened.symlink_to(path.resolve())
+        reader = Reader(opened)
         reader.open()
     except Exception as exc:  # rosbags raises ReaderError, but also KeyError/struct/apsw errors on junk
-        msg = f"{path} is not a readable rosbag2 bag ({type(exc).__name__}: {one_line(exc)})"
+        if link_dir is not None:
+            shutil.rmtree(link_dir, ignore_errors=True)
+        rename = f"; or rename it to {path.with_suffix(suffix)}" if link_dir is not None else ""
+        msg = f"{path} is not a readable rosbag2 bag ({type(exc).__name__}: {one_line(exc)}){rename}"
         raise RecordingError(msg) from exc
+    reader.margcal_link_dir = link_dir  # removed by _close
     return reader
 
 
 def _close(reader: Any) -> None:
-    """Close a reader; a failure to close a corrupt file after reading is logged, not raised over the real error."""
+    """Close a reader; a failure to close a corrupt file after reading is logged, not raised over the real error.
+    The link ``_open_reader`` made for a file rosbags would not open by its name is removed."""
     try:
         reader.close()
     except Exception as exc:  # the reader of a corrupt file may fail again on close
         log.debug("closing the bag reader failed: %s: %s", type(exc).__name__, exc)
+    finally:
+        link_dir = getattr(reader, "margcal_link_dir", None)
+        if link_dir is not None:
+            shutil.rmtree(link_dir, ignore_errors=True)
 
 
 
@@ -265,6 +314,7 @@ def read_bag(path: Path, sensor: str | None, topic: str | None, order: str) -> R
     if not (np.isfinite(times).all() and np.isfinite(raw).all()):
         msg = f"{path}: topic {conn.topic!r} has NaN/Inf samples; remove them"
         raise RecordingError(msg)
+    check_stamps(times, f"{path} {conn.topic}")
     index = None if order == "file" else check_order(times, f"{path} {conn.topic}", order == "sort")
     if index is not None:
         times, raw = times[index], raw[index]

@@ -11,7 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..model.errors import RecordingError
-from .recording import Recording, check_order
+from .recording import Recording, check_order, check_stamps
 
 __all__ = ["guess_sensor", "read_csv", "write_csv"]
 
@@ -67,6 +67,8 @@ def read_csv(path: Path, sensor: str | None, order: str) -> Recording:
             raise RecordingError(msg)
         for j, c in enumerate(cols):
             try:
+                if "_" in row[c]:  # float() reads '1_0e-6' as a Python literal, 1e-5: a typo in a CSV
+                    raise ValueError(row[c])
                 data[i, j] = float(row[c])
             except ValueError:
                 msg = f"{path}: line {i + 2}, column {wanted[j]!r}: {row[c]!r} is not a number"
@@ -77,6 +79,7 @@ def read_csv(path: Path, sensor: str | None, order: str) -> Recording:
         n_bad = int(bad.any(axis=1).sum())
         msg = f"{path}: line {i + 2}, column {wanted[j]!r} is {float(data[i, j])}; {n_bad} row(s) are not finite, remove them"
         raise RecordingError(msg)
+    check_stamps(data[:, 0], str(path))
     index = None if order == "file" else check_order(data[:, 0], str(path), order == "sort")
     if index is not None:
         data = data[index]

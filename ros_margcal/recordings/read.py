@@ -27,7 +27,8 @@ def read_recording(
     """Read a CSV or rosbag2 recording of one sensor.
 
     Args:
-        path: a .csv file, a rosbag2 directory, or a .mcap / .db3 file.
+        path: a .csv file, a rosbag2 directory, or a .mcap / .db3 file (told by its content, else its suffix in
+            any case).
         sensor: "mag" or "accel": for a bag, which message type to read; for a CSV, the label
             (default: guessed from the file name, "mag" / "acc", else "").
         topic: for a bag, the topic to read (needed when several match).
@@ -43,7 +44,8 @@ def read_recording(
     Raises:
         RecordingError: missing file, a ROS 1 ``.bag`` (with the command that converts it), bad header,
             non-numeric or non-finite cells, empty file, no (or no unique) matching topic, time going
-            backwards (``order="check"``), an unknown ``order``.
+            backwards (``order="check"``), an unknown ``order``, stamps that are not seconds (with the unit they
+            look like: ``recording.check_stamps``), a directory without metadata.yaml.
     """
     check_sensor(sensor)
     how = time_order(order, sort)
@@ -51,7 +53,7 @@ def read_recording(
     if not p.exists():
         msg = f"recording {p} does not exist"
         raise RecordingError(msg)
-    if p.suffix == ".bag":  # ROS 1: rosbags reads it only through its converter
+    if p.suffix.lower() == ".bag":  # ROS 1: rosbags reads it only through its converter
         msg = (f"{p} is a ROS 1 bag; convert it to rosbag2 first: rosbags-convert --src {p} --dst {p.with_suffix('')} "
                f"(the rosbags package), then pass {p.with_suffix('')}")
         raise RecordingError(msg)

@@ -12,13 +12,28 @@ from numpy.typing import NDArray
 from ..model.calibration import Calibration
 from ..model.errors import InputError, RecordingError
 
-__all__ = ["TIME_ORDERS", "Recording", "check_order", "check_sensor", "continue_clock", "drop_zero_rows", "time_order"]
+__all__ = ["MAX_STAMP_S", "MAX_STEP_S", "MIN_STEPS", "TIME_ORDERS", "Recording", "check_order", "check_sensor", "check_stamps",
+           "continue_clock", "drop_zero_rows", "stamp_unit", "time_order"]
 
 log = logging.getLogger(__name__)
 Array = NDArray[np.float64]
 
 TIME_ORDERS = ("check", "sort", "file")
 """What a reader does when the time goes backwards: refuse, sort stably, or keep the file's order and times."""
+
+MAX_STAMP_S = 1e12
+"""Largest plausible |stamp|, s (31,700 years; ROS time fits in 2^32 s); keeps every stamp difference finite. The
+readers refuse a stamp beyond it, the stream's intake drops it as ``bad_stamp``."""
+MAX_STEP_S = 2.0
+"""Largest plausible typical step between samples, s: a sensor read less often (one sample per gate window)
+calibrates nothing, while millisecond stamps of a sensor read at 400 Hz or less step by more."""
+MIN_STEPS = 10
+"""Forward steps a recording needs before its typical step is judged (a hand-made file of a few rows is not)."""
+_UNITS = (("milliseconds", 1e3), ("microseconds", 1e6), ("nanoseconds", 1e9))
+_EPOCH_S = (1e8, 1e10)
+"""Seconds since the epoch of a real clock (1973 to 2286)."""
+_RATE_HZ = (1.0, 1e4)
+"""Rates a MARG sensor is read at."""
 
 
 @dataclass
@@ -123,6 +138,49 @@ def continue_clock(t: Array) -> tuple[Array, NDArray[np.intp]]:
     add[back + 1] = typical - steps[back]
     shift = np.cumsum(add)
     return times + (shift - shift[-1]), back
+
+
+def stamp_unit(stamp: float, step: float | None) -> str:
+    """The unit stamps count in when not seconds, in words ("" when none fits): ``stamp`` a typical stamp, ``step``
+    the typical step (None: unknown). A unit fits when the step is a sensor's rate in it and the stamp a time since
+    the epoch in it (named so, and preferred) or a time below ``MAX_STAMP_S`` in it."""
+    fits = []
+    for name, f in _UNITS:
+        if step is not None and not _RATE_HZ[0] <= f / step <= _RATE_HZ[1]:
+            continue
+        rate = "" if step is None else f" (a {f / step:.4g} Hz sensor)"
+        if _EPOCH_S[0] <= abs(stamp) / f < _EPOCH_S[1]:
+            return f"{name} since the epoch{rate}"
+        if abs(stamp) / f <= MAX_STAMP_S:
+            fits.append(f"{name}{rate}")
+    return " or ".join(fits)
+
+
+def check_stamps(t: Array, where: str) -> None:
+    """Refuse stamps that are not seconds, naming the unit they look like (``stamp_unit``).
+
+    Most stamps beyond ``MAX_STAMP_S`` (nanoseconds since the epoch: 1.7e18), or a median forward step above
+    ``MAX_STEP_S`` (milliseconds at 100 Hz: 10): the recording is refused with the likely unit (``where`` names it).
+    A few stamps beyond it among seconds are glitches, kept: the stream drops them (``bad_stamp``), a batch consumer
+    takes them as a clock that jumped.
+    """
+    times = np.asarray(t, dtype=np.float64).reshape(-1)
+    steps = np.diff(times)
+    steps = steps[steps > 0.0]
+    step = float(np.median(steps)) if steps.size else None
+    beyond = np.flatnonzero(~(np.abs(times) <= MAX_STAMP_S))
+    if 2 * beyond.size > times.size:
+        typical = float(np.median(np.abs(times)))
+        unit = stamp_unit(typical, step)
+        what = f"they look like {unit}" if unit else "no time in seconds"
+        msg = f"{where}: stamps of {typical:.6g} are beyond {MAX_STAMP_S:g} s (31,700 years): {what}; give seconds"
+        raise RecordingError(msg)
+    if step is not None and steps.size >= MIN_STEPS and step > MAX_STEP_S:
+        unit = stamp_unit(float(np.median(np.abs(times))), step)
+        what = f"they look like {unit}" if unit else "not seconds"
+        msg = (f"{where}: stamps step by {step:.4g} (the median), one sample every {step:.4g} s if seconds: {what}; "
+               "give seconds")
+        raise RecordingError(msg)
 
 
 def check_order(t: Array, where: str, sort: bool) -> NDArray[np.intp] | None:

@@ -595,6 +595,9 @@ class SensorCalibrator(ChangeDetection, Evaluation):
                 msg = f"collecting: {pct(self.coverage)} coverage, predicted error {shown} > {pct(self.threshold)}"
             elif self.passed == 0 and self.seen:
                 msg = f"collecting: every sample dropped so far: {self._intake.drop_summary()}"
+            elif self.kept == 0 and self._gate is not None and self._intake.stamp_note():  # not the gate's threshold
+                why = self._intake.drop_summary() or self._intake.stamp_note()  # (ms stamps are taken: no drop)
+                msg = f"collecting: no still sample from the inactivity gate yet: {why}"
             elif self.kept == 0 and self._gate is not None:
                 msg = (f"collecting: no still sample from the inactivity gate yet: {self.passed} samples reached it; "
                        f"0 of {self.passed} samples still for >= {self._gate.window_s:g} s{self._gate_figures()}: hold "
@@ -606,8 +609,8 @@ class SensorCalibrator(ChangeDetection, Evaluation):
                 msg = f"collecting: {self._last_reason}"
             msg += self._static_note()
             dropped = sum(self.dropped.values())
-            if self.passed and 2 * dropped > self.seen:
-                msg += f"; {self._intake.drop_summary()}"
+            if self.passed and 2 * dropped > self.seen and (summary := self._intake.drop_summary()) not in msg:
+                msg += f"; {summary}"
         if self._intake.learnt:
             msg += f"; {self._intake.learnt}"
         if self.dropped["saturated"]:

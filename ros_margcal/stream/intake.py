@@ -24,6 +24,9 @@ objects (the node and the replay hand over what a message or a file held):
   new time base (counted in ``time_base_resets``; ``new_base_step`` says how far the stamps moved)
   and is taken. A lone glitch (one sample an hour or 1e9 s ahead, or a late one) is dropped once and
   the samples after it go on as before. A restart thus costs ``new_time_base_after - 1`` samples.
+- Stamps that are not seconds (nanoseconds since the epoch, all 0, ms that step by 10 "s"): ``stamp_note`` says
+  so, with the unit they look like (``recordings.recording.stamp_unit``), when nearly every sample was dropped for
+  its stamp or nearly every step on the time base is longer than ``MAX_STEP_S``; ``drop_summary`` adds it.
 - ``burst``: closer than ``1 / max_rate_hz`` to the last taken sample.
 - ``saturated``: on an axis pinned at the end of the sensor's range while it turns (``saturation.RailWatch``,
   ``rails``), which the status names; ``drop_saturated`` false keeps them.
@@ -55,18 +58,22 @@ from typing import Any
 
 import numpy as np
 
+from ..recordings.recording import MAX_STAMP_S, MAX_STEP_S, MIN_STEPS, stamp_unit
 from .config import STATIC_SPREAD, PipelineConfig, raise_hint, relative_spread
 from .saturation import RailWatch
 from .units import LEARN_HIGH, LEARN_LOW, RELEARN_FACTOR, RELEARN_SHARE
 
-__all__ = ["DROP_REASONS", "MAX_GYRO_RAD_S", "MAX_STAMP_S", "Intake", "Sample", "SpikeFilter"]
+__all__ = ["DROP_REASONS", "MAX_GYRO_RAD_S", "MAX_STAMP_S", "STAMP_NOTE_SHARE", "STAMP_REASONS", "Intake", "Sample",
+           "SpikeFilter"]
 
 DROP_REASONS = ("wrong_size", "bad_stamp", "nonfinite", "zero", "magnitude", "repeated_stamp", "backwards_stamp",
                 "stamp_jump", "burst", "saturated", "spike", "outlier")
 """Why a sample was dropped (the keys of ``dropped``); ``spike`` (``SpikeFilter``) and ``outlier`` are the calibrator's."""
 
-MAX_STAMP_S = 1e12
-"""Largest plausible |stamp|, s (ROS time fits in 2^32 s); keeps every stamp difference finite."""
+STAMP_REASONS = ("bad_stamp", "repeated_stamp", "backwards_stamp", "stamp_jump")
+"""The drops for a sample's stamp; when they are nearly all (``STAMP_NOTE_SHARE``) the stamps are no seconds."""
+STAMP_NOTE_SHARE = 0.9
+"""Share of the samples dropped for their stamps (or of the steps longer than ``MAX_STEP_S``) that says so."""
 
 MAX_GYRO_RAD_S = 100.0
 """Largest plausible angular rate, rad/s (5730 °/s: above the ±4000 °/s full scale of any MEMS gyro)."""
@@ -142,6 +149,10 @@ class Intake:
         self._last_taken_t = -math.inf
         self._off_last: float | None = None
         self._off_count = 0
+        self._bad: tuple[float | None, float | None] = (None, None)  # the last two stamps beyond MAX_STAMP_S
+        self._jump: tuple[float, float] | None = None  # (stamp, step) of the last stamp_jump
+        self._steps = self._slow = 0  # steps on the time base, and those longer than MAX_STEP_S
+        self._slow_step = 0.0
         self.last_norms: dict[str, float] = {}
         """The norm of the last sample dropped as ``zero`` and of the last dropped as ``magnitude``."""
         self.zero_rows = 0
@@ -228,6 +239,7 @@ class Intake:
         if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z) and math.isfinite(ts)):
             return "nonfinite"
         if abs(ts) > MAX_STAMP_S:
+            self._bad = (self._bad[1], ts)
             return "bad_stamp"
         mag = math.sqrt(x * x + y * y + z * z)
         cfg = self.config
@@ -320,7 +332,37 @@ class Intake:
             zeros = f", {self.zero_rows} of them all-zero rows" if self.zero_rows else ""
             return (f"{head}: {n} x |v| at or below the limit{zeros}, last non-zero |v| = {last:.4g} <= {lo:.4g} {cfg.unit} "
                     f"({where}); {hint}")
-        return f"{head}: {n} x {worst}"
+        note = self.stamp_note() if worst in STAMP_REASONS else ""
+        return f"{head}: {n} x {worst}{'; ' + note if note else ''}"
+
+    def stamp_note(self) -> str:
+        """What the stamps look like when they are not seconds, and what to do ("" when they may be seconds):
+        nearly every sample dropped for its stamp (beyond ``MAX_STAMP_S``, repeated, jumping), or nearly every
+        step on the time base longer than ``MAX_STEP_S`` (ms stamps of a 100 Hz sensor step by 10)."""
+        d = self.dropped
+        stamps = sum(d[k] for k in STAMP_REASONS)
+        if self.seen >= MIN_STEPS and stamps >= STAMP_NOTE_SHARE * self.seen:
+            worst = max(STAMP_REASONS, key=lambda k: d[k])
+            prev, last = self._bad
+            if worst == "bad_stamp" and last is not None:
+                step = last - prev if prev is not None and last > prev else None
+                unit = stamp_unit(last, step)
+                what = f"they look like {unit}" if unit else "no time in seconds"
+                return f"stamps of {last:.6g} are beyond {MAX_STAMP_S:g} s (31,700 years): {what}; give seconds"
+            if worst == "repeated_stamp" and self._last_t is not None:
+                return f"the stamps do not advance (each {self._last_t:.6g}): give each sample its time in seconds"
+            if worst == "stamp_jump" and self._jump is not None:
+                t, step = self._jump
+                return self._step_note(t, step, f"a jump beyond max_stamp_gap_s {self.config.max_stamp_gap_s:g} s")
+        if self._steps >= MIN_STEPS and self._slow >= STAMP_NOTE_SHARE * self._steps and self._last_t is not None:
+            return self._step_note(self._last_t, self._slow_step, "the last step")
+        return ""
+
+    @staticmethod
+    def _step_note(t: float, step: float, which: str) -> str:
+        unit = stamp_unit(t, step)
+        what = f"they look like {unit}" if unit else "not seconds"
+        return f"stamps step by {step:.4g} ({which}), one sample every {step:.4g} s if seconds: {what}; give seconds"
 
     def _stamp(self, t: float) -> str:
         """"" when ``t`` is on the time base (or starts a new one), else the drop reason."""
@@ -335,10 +377,18 @@ class Intake:
                 self._off_count = self._off_count + 1 if off is not None and 0.0 < t - off <= gap else 1
                 self._off_last = t
                 if self._off_count < self.config.new_time_base_after:
-                    return "backwards_stamp" if dt < 0.0 else "stamp_jump"
+                    if dt > 0.0:  # the step from the sample before (stamps that all jump: their step)
+                        self._jump = (t, t - off if off is not None and t > off else dt)
+                        return "stamp_jump"
+                    return "backwards_stamp"
                 self.time_base_resets += 1
                 self.new_base_step = dt
                 self._last_taken_t = -math.inf
+            else:
+                self._steps += 1
+                if dt > MAX_STEP_S:
+                    self._slow += 1
+                    self._slow_step = dt
         self._off_last, self._off_count = None, 0
         self._last_t = t
         return ""

@@ -52,19 +52,18 @@ import logging
 import math
 import os
 from collections.abc import Mapping, Sequence
-from dataclasses import fields
 from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..coverage.indicators import Indicators
+from ..model.calibration_file import read_small_text
 from ..model.errors import CalibrationFileError, ConfigError, InputError
 from .roc import OperatingPoint, operating_point
 from .threshold import _LOG_FLOOR, DEFAULT_MAX_ERROR, DEFAULT_MAX_FPR, _features, _row_from
 
-__all__ = ["INDICATOR_NAMES", "MAX_MF", "MAX_RULES", "FuzzyValidator"]
+__all__ = ["INDICATOR_NAMES", "MAX_FILE_BYTES", "MAX_MF", "MAX_RULES", "FuzzyValidator"]
 
 log = logging.getLogger(__name__)
 
@@ -74,8 +73,11 @@ MAX_MF = 64
 """Most membership functions per input (the trained validators use 4-10)."""
 MAX_RULES = 100_000
 """Most rules (the product of ``n_mf``): a file asking for 1e9 x 1e9 allocated 7 TiB."""
-INDICATOR_NAMES = (*(f.name for f in fields(Indicators)), "e_total")
-"""The inputs a validator read from a file may take: the coverage indicators the calibrator computes."""
+MAX_FILE_BYTES = 16 * 1024 * 1024
+"""Largest validator file read (``MAX_RULES`` consequents as JSON are about 2 MB)."""
+INDICATOR_NAMES = ("A", "B", "C", "D", "b_frac", "c_norm", "d_norm", "n_points", "radius", "e_info", "e_total")
+"""The inputs a validator read from a file may take: the coverage indicators the calibrator computes
+(``coverage.indicators.Indicators``' fields and ``e_total``; a layer above this one, so named here)."""
 
 class FuzzyValidator:
     """Zero-order TSK fuzzy system predicting the calibration error from coverage indicators.
@@ -379,11 +381,9 @@ class FuzzyValidator:
     def load(cls, path: str | os.PathLike[str]) -> FuzzyValidator:
         """Read a validator written by ``save``; CalibrationFileError when it cannot be trusted."""
         p = Path(path)
+        text = read_small_text(p, str(p), "validator file", MAX_FILE_BYTES)  # never a FIFO or a device: they hung the node
         try:
-            d = json.loads(p.read_text(encoding="utf-8"))
-        except OSError as exc:
-            msg = f"{p}: cannot read validator file: {exc}"
-            raise CalibrationFileError(msg) from exc
+            d = json.loads(text)
         except ValueError as exc:
             msg = f"{p}: validator file is not valid JSON: {exc}"
             raise CalibrationFileError(msg) from exc

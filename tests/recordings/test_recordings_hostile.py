@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import tumbling_imu
 
 from ros_margcal import write_bag
 from ros_margcal.cli import main
@@ -17,7 +18,6 @@ from ros_margcal.model.errors import RecordingError
 from ros_margcal.recordings.bag import iter_bag_messages
 from ros_margcal.recordings.read import read_recording
 from ros_margcal.recordings.recording import Recording
-from ros_margcal.sim.simulation import magnetometer_stream, random_sensor, tumbling, tumbling_motion
 
 SEED = 13
 ZSTD_MAGIC = b"\x28\xb5\x2f\xfd"
@@ -26,10 +26,7 @@ ZSTD_MAGIC = b"\x28\xb5\x2f\xfd"
 @pytest.fixture(scope="module")
 def imu() -> dict[str, Recording]:
     """Ten seconds of an IMU at 50 Hz: accelerometer and magnetometer topics."""
-    rng = np.random.default_rng(SEED)
-    motion = tumbling_motion(10.0, 50.0, rng)
-    acc = tumbling(random_sensor(rng, "accel"), 10.0, 50.0, rng, motion=motion)
-    mag = magnetometer_stream(random_sensor(rng, "mag"), 10.0, 50.0, rng, motion=motion)
+    acc, mag = tumbling_imu(10.0, 50.0, SEED)
     return {"/imu/data_raw": acc, "/imu/mag": mag}
 
 

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
+import os
 from pathlib import Path
 
 import numpy as np
@@ -11,8 +13,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from ros_margcal.coverage.indicators import Indicators
 from ros_margcal.model.errors import CalibrationFileError, ConfigError, InputError
-from ros_margcal.validation.fuzzy import FuzzyValidator
+from ros_margcal.validation.fuzzy import INDICATOR_NAMES, FuzzyValidator
 from ros_margcal.validation.roc import auc, evaluate_threshold, operating_point, roc_auc, roc_curve
 from ros_margcal.validation.shipped import load_default_validator
 from ros_margcal.validation.threshold import ThresholdValidator
@@ -286,6 +289,16 @@ def test_load_refuses_non_json_and_missing(tmp_path: Path) -> None:
         FuzzyValidator.load(path)
 
 
+def test_load_refuses_a_fifo_or_a_device(tmp_path: Path) -> None:
+    """A validator_file that is a FIFO (no writer: the read blocked for ever) or /dev/zero (endless) hung the node at
+    start, deaf to SIGTERM: refused as not a regular file, at once."""
+    fifo = tmp_path / "v.fifo"
+    os.mkfifo(fifo)
+    for path in (fifo, Path("/dev/zero")):
+        with pytest.raises(CalibrationFileError, match="not a regular file"):
+            FuzzyValidator.load(path)
+
+
 def test_default_validator_ships_and_is_trained() -> None:
     """The packaged model loads, has a threshold near the 1 % label boundary and orders coverage:
     a full sphere (C, D normalised near their maxima) is predicted better than a small cap."""
@@ -296,3 +309,9 @@ def test_default_validator_ships_and_is_trained() -> None:
     full = {"c_norm": 1.0, "d_norm": 1.0, "b_frac": 0.0, "e_info": 0.0, "e_total": math.log10(600)}
     poor = {"c_norm": 0.3, "d_norm": 0.01, "b_frac": 0.9, "e_info": -6.0, "e_total": -6.0 + math.log10(50)}
     assert v.predict_indicators(full) < v.threshold < v.predict_indicators(poor)
+
+
+def test_the_inputs_a_validator_file_may_take_are_the_indicators() -> None:
+    """``fuzzy.INDICATOR_NAMES`` (written out: validation sits below coverage) names every indicator the
+    calibrator computes, and nothing else."""
+    assert set(INDICATOR_NAMES) == {f.name for f in dataclasses.fields(Indicators)} | {"e_total"}
