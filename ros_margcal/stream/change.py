@@ -477,7 +477,7 @@ class ChangeDetection:
         old_text = f"old calibration: median {pct(med)} since the onset"
         try:
             cal = fit(both, model=cfg.model, method=cfg.method, norm=cfg.reference_norm,
-                      loss=cfg.loss, init="lin_auto", max_iter=cfg.max_iter, sensor=self.sensor, unit=cfg.unit)
+                      loss=cfg.loss, max_iter=cfg.max_iter, sensor=self.sensor, unit=cfg.unit)
             cal = cal.replace(stamp=self._t)
             reason = guard_rails(cal, cfg, post, None)
         except (ValueError, ArithmeticError) as exc:

@@ -250,7 +250,8 @@ class PipelineConfig:
         if self.model not in SUPPORTED[self.method]:
             raise ConfigError(f"method {self.method!r} cannot fit model {self.model!r}; it supports {SUPPORTED[self.method]}")
         if self.loss != "linear" and self.method != "lm":
-            raise ConfigError(f"loss {self.loss!r} needs method 'lm', got method {self.method!r}")
+            raise ConfigError(f"loss {self.loss!r} needs method 'lm', got method {self.method!r}: with method "
+                              f"{self.method!r} set loss 'linear' too")
         if not self.gain_min <= 1.0 <= self.gain_max:
             raise ConfigError(f"need 0 < gain_min <= 1 <= gain_max, got {self.gain_min}, {self.gain_max}")
         if not self.norm_min < self.norm_max:

@@ -380,7 +380,7 @@ class Evaluation(PartialCalibration):
                 ref = cfg.reference_norm or float(np.median(np.linalg.norm(pts - pts.mean(axis=0), axis=1)))
                 scale = cfg.f_scale_rel * ref
             cal = fit(pts, model=cfg.model, method=cfg.method, norm=cfg.reference_norm, loss=cfg.loss,
-                      f_scale=scale, init="lin_auto", max_iter=cfg.max_iter, sensor=self.sensor, unit=cfg.unit)
+                      f_scale=scale, max_iter=cfg.max_iter, sensor=self.sensor, unit=cfg.unit)
             cal = cal.replace(stamp=job["t"])
             # a MAP calibration (partial or early) is no yardstick for the full fit: no not-worse check against it
             reason = guard_rails(cal, cfg, job["recent"], None if job.get("current_is_map") else job["current"],
