@@ -217,6 +217,11 @@ class InactivityGate:
         return self.cv_threshold, self.axis_threshold
 
     @property
+    def gyro_high_share(self) -> float:
+        """Share of the window's samples whose rate is above ``gyro_threshold`` (0 without one or an empty window)."""
+        return self._n_gyro_high / len(self._win) if self._win else 0.0
+
+    @property
     def learnt(self) -> str:
         """The learnt thresholds in words ("" while none has widened)."""
         if (self.cv_threshold, self.axis_threshold) == self.base_thresholds:
@@ -426,6 +431,13 @@ class GyroAidedGate:
     def learnt(self) -> str:
         """The learnt thresholds of the window in use in words ("" while none has widened)."""
         return (self.aided if self.gyro_seen else self.plain).learnt
+
+    @property
+    def gyro_busy(self) -> tuple[float, float] | None:
+        """``(share, rest threshold rad/s)`` when the gyro-aided window in use holds rates above its threshold, else
+        None: the accelerometer may be still while the gyro says it turns (a gyro in deg/s at rest reads ~0.1-1)."""
+        share = self.aided.gyro_high_share if self.gyro_seen else 0.0
+        return (share, float(self.aided.gyro_threshold)) if share > 0.0 else None  # type: ignore[arg-type]
 
     def reset(self) -> None:
         """Empty both windows."""

@@ -547,6 +547,18 @@ class SensorCalibrator(ChangeDetection, Evaluation):
                 if self.sensor == "accel" else "static: they fix the field norm only); turn it through all directions")
         return f"; the sensor has not turned: the last {len(pts)} samples stay within {pct(spread)} of their mean ({what}"
 
+    def _gate_advice(self) -> str:
+        """What to do when the gate passed no sample: the gyro's rest threshold when the window's readings are still
+        by their CV and spread but the gyro reads above it (rates in deg/s: 0.1-1 at rest), else the CV threshold."""
+        cv, axis = self._gate.window_stats
+        cv_max, axis_max = self._gate.thresholds
+        busy = self._gate.gyro_busy
+        if busy is not None and cv <= cv_max and axis <= axis_max:
+            return (f"the readings are still but the gyro reads above {busy[1]:g} rad/s on {pct(busy[0])} of the window: "
+                    "are the rates in deg/s, not rad/s (REP-103)? Else hold it still, or "
+                    f"{raise_hint(self.sensor, 'gate_gyro_rest_threshold')}")
+        return f"hold the sensor still in a few poses, or for a noisy sensor {raise_hint(self.sensor, 'gate_cv_threshold')}"
+
     def _gate_figures(self) -> str:
         """The gate's last window against its thresholds, `` (last window CV .. vs .., axis spread .. vs ..; learnt)``."""
         cv, axis = self._gate.window_stats
@@ -600,9 +612,8 @@ class SensorCalibrator(ChangeDetection, Evaluation):
                 msg = f"collecting: no still sample from the inactivity gate yet: {why}"
             elif self.kept == 0 and self._gate is not None:
                 msg = (f"collecting: no still sample from the inactivity gate yet: {self.passed} samples reached it; "
-                       f"0 of {self.passed} samples still for >= {self._gate.window_s:g} s{self._gate_figures()}: hold "
-                       f"the sensor still in a few poses, or for a noisy sensor "
-                       f"{raise_hint(self.sensor, 'gate_cv_threshold')}")
+                       f"0 of {self.passed} samples still for >= {self._gate.window_s:g} s{self._gate_figures()}: "
+                       f"{self._gate_advice()}")
             elif self._last_reason == _WAITING and len(self._buffer):  # no evaluation yet (refit_every samples): say so
                 msg = f"collecting: {len(self._buffer)} samples buffered, need {self.config.min_points}"
             else:
