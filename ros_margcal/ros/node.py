@@ -297,6 +297,12 @@ class _Traffic:
         why = ", ".join(f"{k} {v}" for k, v in sorted(delta.items(), key=lambda kv: -kv[1]))
         return f"dropping {100 * sum(delta.values()) / seen:.0f} % of the samples ({why} of the last {seen})"
 
+    def forget_frames(self, frame: str | None = None) -> None:
+        """Calibrate ``frame`` from now on (None: the next one seen), forgetting the other frames and the window."""
+        self.frame, self.other_frames, self.other_more = frame, {}, 0
+        self.recent_frames.clear()
+        self.recent_counts.clear()
+
     def takeover(self, frame_id: str) -> bool:
         """Record one message's frame_id; True when another frame than ``frame`` now carries the topic
         (``FRAME_TAKEOVER``): the caller switches to it."""
@@ -604,7 +610,7 @@ class MargCalNode(Node):
         traffic.last_rx = now
         if traffic.frame is None:
             traffic.frame = frame_id
-        if traffic.takeover(frame_id):
+        if traffic.other_frames and traffic.takeover(frame_id):  # (nothing to count while one frame alone arrives)
             self._follow_frame(s, frame_id)
         elif frame_id != traffic.frame:  # a second sensor on the topic: pooled, it would spoil both calibrations
             others = traffic.other_frames
@@ -628,7 +634,7 @@ class MargCalNode(Node):
         self.get_logger().warning(
             f"{s}: {FRAME_TAKEOVER_SHARE:.0%} of the last {FRAME_TAKEOVER} messages carry frame_id {_shown(frame_id)}, not "
             f"{_shown(traffic.frame or '')}: following {_shown(frame_id)}, its calibration started afresh")
-        traffic.frame, traffic.other_frames, traffic.other_more = frame_id, {}, 0
+        traffic.forget_frames(frame_id)
         self._batch = [b for b in self._batch if b[0] != s]  # the old frame's, not sent yet: not the new one's
         traffic.reset_base = traffic.received - 1  # the worker counts from this message on
         self._calibration[s] = None
@@ -803,7 +809,7 @@ class MargCalNode(Node):
         for s in self._calibration:
             self._calibration[s] = None  # nothing more is published with the old calibration
         for s, traffic in self._traffic.items():
-            traffic.frame, traffic.other_frames, traffic.other_more = None, {}, 0
+            traffic.forget_frames()
             # the worker forgets what it has seen; what is still queued here reaches it after the reset
             traffic.reset_base = traffic.received - sum(1 for b in self._batch if b[0] == s)
         aside = self._set_aside()

@@ -607,8 +607,8 @@ class SensorCalibrator(ChangeDetection, Evaluation):
                 msg = f"collecting: {pct(self.coverage)} coverage, predicted error {shown} > {pct(self.threshold)}"
             elif self.passed == 0 and self.seen:
                 msg = f"collecting: every sample dropped so far: {self._intake.drop_summary()}"
-            elif self.kept == 0 and self._gate is not None and self._intake.stamp_note():  # not the gate's threshold
-                why = self._intake.drop_summary() or self._intake.stamp_note()  # (ms stamps are taken: no drop)
+            elif self.kept == 0 and self._gate is not None and (note := self._intake.stamp_note()):  # not the gate's
+                why = self._intake.drop_summary() or note  # (ms stamps are taken: no drop)
                 msg = f"collecting: no still sample from the inactivity gate yet: {why}"
             elif self.kept == 0 and self._gate is not None:
                 msg = (f"collecting: no still sample from the inactivity gate yet: {self.passed} samples reached it; "

@@ -151,7 +151,7 @@ class Intake:
         self._off_count = 0
         self._bad: tuple[float | None, float | None] = (None, None)  # the last two stamps beyond MAX_STAMP_S
         self._jump: tuple[float, float] | None = None  # (stamp, step) of the last stamp_jump
-        self._steps = self._slow = 0  # steps on the time base, and those longer than MAX_STEP_S
+        self._slow = 0  # steps on the time base longer than MAX_STEP_S (against ``taken``: no count per sample)
         self._slow_step = 0.0
         self.last_norms: dict[str, float] = {}
         """The norm of the last sample dropped as ``zero`` and of the last dropped as ``magnitude``."""
@@ -354,7 +354,7 @@ class Intake:
             if worst == "stamp_jump" and self._jump is not None:
                 t, step = self._jump
                 return self._step_note(t, step, f"a jump beyond max_stamp_gap_s {self.config.max_stamp_gap_s:g} s")
-        if self._steps >= MIN_STEPS and self._slow >= STAMP_NOTE_SHARE * self._steps and self._last_t is not None:
+        if self.taken >= MIN_STEPS and self._slow >= STAMP_NOTE_SHARE * self.taken and self._last_t is not None:
             return self._step_note(self._last_t, self._slow_step, "the last step")
         return ""
 
@@ -384,11 +384,9 @@ class Intake:
                 self.time_base_resets += 1
                 self.new_base_step = dt
                 self._last_taken_t = -math.inf
-            else:
-                self._steps += 1
-                if dt > MAX_STEP_S:
-                    self._slow += 1
-                    self._slow_step = dt
+            elif dt > MAX_STEP_S:
+                self._slow += 1
+                self._slow_step = dt
         self._off_last, self._off_count = None, 0
         self._last_t = t
         return ""

@@ -663,12 +663,13 @@ def test_the_sensor_follows_the_frame_that_carries_the_topic(harness: Harness, s
     assert harness.spin_until(lambda: node.statuses["mag"].samples_seen >= len(stream) - 200, 5.0)
     assert harness.calibrated and {m.header.frame_id for m in harness.calibrated} == {"imu_link"}
     before = node.calibrations["mag"]
-    # the driver now says mag_link: the first 179 messages of it are another frame's, then the sensor follows it
+    # the driver now says mag_link: its first 180 messages are another frame's (the window counts from its second),
+    # then the sensor follows it
     later = replace(stream, t=stream.t + 100.0)
-    harness.send(mag_msg(harness.c, float(t), v, frame_id="mag_link") for t, v in zip(later.t[:179], later.raw[:179],
+    harness.send(mag_msg(harness.c, float(t), v, frame_id="mag_link") for t, v in zip(later.t[:180], later.raw[:180],
                                                                                         strict=True))
     assert node._traffic["mag"].frame == "imu_link" and node.calibrations["mag"] is before
-    harness.send(mag_msg(harness.c, float(t), v, frame_id="mag_link") for t, v in zip(later.t[179:], later.raw[179:],
+    harness.send(mag_msg(harness.c, float(t), v, frame_id="mag_link") for t, v in zip(later.t[180:], later.raw[180:],
                                                                                         strict=True))
     assert node._traffic["mag"].frame == "mag_link"
     assert harness.spin_until(lambda: node.calibrations["mag"] is not None and node.calibrations["mag"] is not before, 10.0)
@@ -676,4 +677,4 @@ def test_the_sensor_follows_the_frame_that_carries_the_topic(harness: Harness, s
     harness.spin_until(lambda: bool(harness.status), 3.0)
     kv = {x.key: x.value for x in harness.last_status().values}
     assert kv["ignored_other_frames"] == "0" and kv["worker_backlog"] == "0", kv
-    assert int(kv["samples_seen"]) == len(later) - 179  # the worker counts from the takeover on
+    assert int(kv["samples_seen"]) == len(later) - 180  # the worker counts from the takeover on
