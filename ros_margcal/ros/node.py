@@ -44,7 +44,8 @@ the magnetometer's frame), whichever topic the executor serves first (``pairing.
 accelerometer disabled the Imu topic is still subscribed for the rates.
 
 Sample times come from the header stamp or the receive time (``stamp_source``: ``auto`` uses the
-header stamp until it is zero or stops increasing, then the receive time, with one warning).
+header stamp until 3 of the last 20 are zero or not increasing, then the receive time, with one warning;
+receive times spaced beyond the calibrator's burst period: ``stamps.py``).
 
 Parameters are declared with descriptors and ranges (defaults in ``msg_configs/margcal.yaml``,
 float literals since rclpy types parameters strictly) and checked again as a whole
@@ -353,7 +354,7 @@ class MargCalNode(Node):
             description="trained validator JSON (margcal train-validator); '' = the shipped one", read_only=True))
         self.declare_parameter("stamp_source", "auto", ParameterDescriptor(
             description="sample time: 'header' stamp, 'receive' time, or 'auto' (header, falling back to the receive "
-                        "time for good when stamps are zero or not increasing)", read_only=True,
+                        "time for good when 3 of the last 20 stamps are zero or not increasing)", read_only=True,
             additional_constraints="one of: " + ", ".join(STAMP_SOURCES)))
         self.declare_parameter("queue_depth", 1000, _idesc(
             10, 100000, "depth of the best-effort input queues, messages (1 s at 1 kHz by default)", read_only=True))
@@ -621,7 +622,8 @@ class MargCalNode(Node):
             traffic.other_frame_rx = now
             return
         src = self._stamps[s]
-        t = src.choose(t, self._now_s)
+        cfg = self._configs.get(s)  # receive times spaced a little beyond the calibrator's burst period (stamps.py)
+        t = src.choose(t, self._now_s, 0.0 if cfg is None else 1.01 * cfg.min_period_s)
         if src.warning is not None:
             self.get_logger().warning(src.pop_warning() or "")
         g = (math.nan,) * 3 if gyro is None else (float(gyro[0]), float(gyro[1]), float(gyro[2]))

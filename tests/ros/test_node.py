@@ -35,6 +35,7 @@ from ros_margcal.model.calibration_file import save_calibrations  # noqa: E402
 from ros_margcal.ros.markers import STATE_COLOURS, rotation_quaternion  # noqa: E402
 from ros_margcal.ros.messages import calibration_from_string, mag_to_numpy  # noqa: E402
 from ros_margcal.ros.node import MargCalNode  # noqa: E402
+from ros_margcal.ros.stamps import FALLBACK_BAD  # noqa: E402
 from ros_margcal.sim import simulation as sim  # noqa: E402
 from ros_margcal.stream.calibrator import SensorCalibrator  # noqa: E402
 
@@ -364,8 +365,10 @@ def test_stamp_source_with_a_constant_header_stamp(context: Context, classes: Me
         h.publish(_head(stream, n), stamp=0.0 if mode == "auto" else 5.0)
         assert h.spin_until(lambda: h.node.statuses["mag"].samples_seen == n, 5.0), "a message was lost"
         st = h.node.statuses["mag"]
-        if kept:  # (receive times closer than 1/max_rate_hz may still be dropped as bursts)
-            assert st.dropped.get("repeated_stamp", 0) == 0 and st.dropped.get("backwards_stamp", 0) == 0
+        if kept:  # (auto: the stamps before the third unusable one, stamps.FALLBACK_BAD; a publisher faster than
+            # max_rate_hz beyond stamps.RECEIVE_CATCH_UP_S may still have receive times dropped as bursts)
+            assert st.dropped.get("repeated_stamp", 0) <= (FALLBACK_BAD - 1 if mode == "auto" else 0)
+            assert st.dropped.get("backwards_stamp", 0) == 0
             assert st.samples_passed > 0
         else:
             assert st.dropped["repeated_stamp"] == st.samples_seen - 1
