@@ -48,7 +48,7 @@ import numpy as np
 
 from ..coverage.gate import LEARN_CAP, InactivityGate
 from ..model.calibration import MODELS, Calibration
-from ..model.calibration_file import load_calibrations, save_calibrations
+from ..model.calibration_file import calibration_node, load_calibrations, save_calibrations
 from ..model.errors import (
     CalibrationFileError,
     ConfigError,
@@ -313,7 +313,9 @@ def _existing(args: argparse.Namespace) -> dict[str, Calibration]:
     if out is None or not out.is_file():  # none yet; a FIFO or a device the save refuses, naming it
         return {}
     try:
-        return load_calibrations(out)
+        cals = load_calibrations(out)
+        args.node = calibration_node(out)  # written again under its own node name
+        return cals
     except CalibrationFileError as exc:
         if not args.force:
             msg = (f"-o {out} exists and is no calibration file ({one_line(exc)}); choose another file, or --force "
@@ -430,7 +432,7 @@ def _write(args: argparse.Namespace, cals: dict[str, Calibration], results: list
         if kept:
             print(f"note: {args.output} also held {', '.join(kept)}: kept, only {', '.join(sorted(sensors))} replaced",
                   file=sys.stderr)
-        path = save_calibrations(args.output, {**kept, **cals})
+        path = save_calibrations(args.output, {**kept, **cals}, node=getattr(args, "node", "margcal"))
         print(f"wrote {path}")
     if args.json is not None:
         d = results[0] if len(results) == 1 else {"calibrations": results}

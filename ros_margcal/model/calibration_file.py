@@ -44,8 +44,8 @@ from numpy.typing import NDArray
 from .calibration import Calibration
 from .errors import CalibrationFileError, one_line
 
-__all__ = ["calibration_from_yaml", "calibration_to_yaml", "load_calibrations", "read_small_text", "save_calibrations",
-           "write_temp"]
+__all__ = ["calibration_from_yaml", "calibration_node", "calibration_to_yaml", "load_calibrations", "read_small_text",
+           "save_calibrations", "write_temp"]
 
 Array = NDArray[np.float64]
 
@@ -324,6 +324,21 @@ def load_calibrations(path: str | os.PathLike[str]) -> dict[str, Calibration]:
         raise CalibrationFileError(msg) from exc
     where = str(p) if str(p).isprintable() else repr(str(p))
     return _parse(read_small_text(p, where), where)
+
+
+def calibration_node(path: str | os.PathLike[str]) -> str:
+    """The node name a calibration file's block is under (``"margcal"`` when the file has none): a file written again
+    keeps it (the node writes its own name; ``margcal calibrate -o`` into a node's file kept the other sensor's
+    calibration but renamed the node). CalibrationFileError if the file is unusable."""
+    p = Path(path)
+    where = str(p) if str(p).isprintable() else repr(str(p))
+    doc = _load_yaml(read_small_text(p, where), where)
+    block = _block(doc, where)
+    for key, params in doc.items():
+        inner = params.get("ros__parameters") if isinstance(params, dict) else None
+        if isinstance(inner, dict) and inner.get("calibration") is block:
+            return str(key)
+    return "margcal"
 
 
 def calibration_to_yaml(cal: Calibration, node: str = "margcal") -> str:

@@ -18,7 +18,7 @@ import pytest
 
 from ros_margcal.cli import main
 from ros_margcal.model.calibration import Calibration
-from ros_margcal.model.calibration_file import load_calibrations, save_calibrations
+from ros_margcal.model.calibration_file import calibration_node, load_calibrations, save_calibrations
 from ros_margcal.recordings import write_bag, write_csv
 from ros_margcal.recordings.recording import Recording
 from ros_margcal.sim.simulation import directions, magnetometer_stream, random_sensor, simulate, tumbling
@@ -134,15 +134,17 @@ def test_simulate_truth_does_not_replace_a_file_without_force(tmp_path: Path, ca
 def test_calibrate_keeps_the_other_sensors_calibration_of_its_output(mag_csv: Path, tmp_path: Path,
                                                                      capsys: pytest.CaptureFixture[str]) -> None:
     """The node's file holds both sensors: calibrating the magnetometer into it dropped the accelerometer's. It is
-    kept (said), the magnetometer's replaced."""
+    kept (said), the magnetometer's replaced, the node's name kept (it was written as ``margcal``)."""
     acc = random_sensor(np.random.default_rng(SEED), "accel")
     old_mag = random_sensor(np.random.default_rng(SEED + 1), "mag")
-    out = save_calibrations(tmp_path / "node.yaml", {"accel": acc, "mag": old_mag})
+    out = save_calibrations(tmp_path / "node.yaml", {"accel": acc, "mag": old_mag}, node="robot_imu_calib")
     code, _, err = _run(capsys, "calibrate", str(mag_csv), "-o", str(out))
     assert code == 0, err
     cals = load_calibrations(out)
     assert set(cals) == {"accel", "mag"} and cals["accel"].allclose(acc) and not cals["mag"].allclose(old_mag)
     assert any("accel" in line and "kept" in line for line in err), err
+    assert calibration_node(out) == "robot_imu_calib" and out.read_text().startswith("robot_imu_calib:")
+    assert calibration_node(save_calibrations(tmp_path / "new.yaml", {"accel": acc})) == "margcal"
 
 
 def test_calibrate_refuses_to_replace_a_file_that_is_no_calibration_unless_forced(
