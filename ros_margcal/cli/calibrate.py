@@ -59,7 +59,7 @@ from ..model.errors import (
 )
 from ..model.fitting import LOSSES, METHODS, SUPPORTED, fit
 from ..recordings.read import read_recording
-from ..recordings.recording import Recording, continue_clock
+from ..recordings.recording import Recording, continue_clock, drop_stamp_glitches
 from ..stream.config import PipelineConfig, white_noise
 from . import check_paths
 from .calibrate_guard import EXIT_REFUSED, forced, norm_source, refusal
@@ -238,7 +238,13 @@ def _print(cal: Calibration, source: str, n_read: int, fixed: str = "given by --
 
 
 def _in_file_order(rec: Recording) -> Recording:
-    """The recording with a clock that goes back (a logger restart) made one clock (``continue_clock``), said once."""
+    """The recording with a clock that goes back (a logger restart) made one clock (``continue_clock``), said once;
+    a single stamp out of line with its neighbours is a glitch, not a restart: its sample dropped, said."""
+    t, (rec, glitches) = rec.t, drop_stamp_glitches(rec)
+    if glitches.size:
+        i = int(glitches[0])
+        print(f"dropped {glitches.size} sample(s) whose stamp is out of line with its neighbours' (first: sample {i}, "
+              f"{t[i - 1]:.6g} -> {t[i]:.6g} -> {t[i + 1]:.6g} s)", file=sys.stderr)
     times, back = continue_clock(rec.t)
     if back.size:
         i = int(back[0])

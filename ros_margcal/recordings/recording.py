@@ -13,7 +13,7 @@ from ..model.calibration import Calibration
 from ..model.errors import InputError, RecordingError
 
 __all__ = ["MAX_STAMP_S", "MAX_STEP_S", "MIN_STEPS", "TIME_ORDERS", "Recording", "check_order", "check_sensor", "check_stamps",
-           "continue_clock", "drop_zero_rows", "stamp_unit", "time_order"]
+           "continue_clock", "drop_stamp_glitches", "drop_zero_rows", "stamp_unit", "time_order"]
 
 log = logging.getLogger(__name__)
 Array = NDArray[np.float64]
@@ -98,6 +98,28 @@ def drop_zero_rows(rec: Recording) -> tuple[Recording, int]:
     zero = ~np.any(np.asarray(rec.raw) != 0.0, axis=1) if len(rec) else np.zeros(0, dtype=bool)
     n = int(zero.sum())
     return (rec.slice(~zero), n) if n else (rec, 0)
+
+
+GLITCH_S = 1.0
+"""A stamp out of line with its neighbours by more than this (s) is a glitch (``drop_stamp_glitches``)."""
+
+
+def drop_stamp_glitches(rec: Recording) -> tuple[Recording, NDArray[np.intp]]:
+    """``rec`` without the samples whose stamp is out of line with its neighbours, which are in order with each other,
+    by more than ``GLITCH_S`` (a stray 1e23 or zero stamp in a clock that runs on: taken for a logger restart, it moved
+    every earlier stamp by 1e23 s, where float64 keeps none of them; two samples swapped are left to
+    ``continue_clock``), and their indices in ``rec`` (``rec`` itself when none)."""
+    t = np.asarray(rec.t, dtype=np.float64).reshape(-1)
+    if t.size < 3:
+        return rec, np.zeros(0, dtype=np.intp)
+    before, mid, after = t[:-2], t[1:-1], t[2:]
+    with np.errstate(invalid="ignore", over="ignore"):
+        glitch = np.flatnonzero((before <= after) & (np.maximum(before - mid, mid - after) > GLITCH_S)) + 1
+    if glitch.size == 0:
+        return rec, glitch
+    keep = np.ones(t.size, dtype=bool)
+    keep[glitch] = False
+    return rec.slice(keep), glitch
 
 
 def check_sensor(sensor: str | None) -> None:

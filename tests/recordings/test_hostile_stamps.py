@@ -23,7 +23,7 @@ from ros_margcal.model.errors import RecordingError
 from ros_margcal.recordings.bag import is_bag
 from ros_margcal.recordings.csvfile import write_csv
 from ros_margcal.recordings.read import read_recording
-from ros_margcal.recordings.recording import Recording
+from ros_margcal.recordings.recording import Recording, drop_stamp_glitches
 from ros_margcal.stream.config import PipelineConfig
 from ros_margcal.stream.intake import Intake
 
@@ -114,6 +114,29 @@ def test_a_lone_stamp_beyond_any_clock_is_a_glitch_kept_for_the_stream(tmp_path:
     rec.t[100] = 1e23
     got = read_recording(write_csv(tmp_path / "mag.csv", rec), order="file")
     np.testing.assert_array_equal(got.t, rec.t)
+
+
+@pytest.mark.parametrize("stray", [1e23, 0.0, -5.0])
+def test_calibrate_drops_a_lone_stray_stamp_instead_of_moving_the_clock(
+    tmp_path: Path, imu: dict[str, Recording], stray: float, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``calibrate`` took a lone 1e23 stamp for a logger restart and moved every earlier stamp back by 1e23 s (where
+    float64 keeps none of them): the sample is dropped and said, the clock left as it is; a true restart is kept."""
+    rec = _restamped(imu["mag"], 1.0, 50.0)
+    rec.t[100] = stray
+    path = write_csv(tmp_path / "mag.csv", rec)
+    assert main(["calibrate", str(path), "--json", str(tmp_path / "c.json"), "--force"]) == 0  # (12 s: a young fit)
+    err = capsys.readouterr().err
+    assert "dropped 1 sample(s) whose stamp is out of line" in err and "logger restart" not in err, err
+    got, glitches = drop_stamp_glitches(read_recording(path, order="file"))
+    assert glitches.tolist() == [100] and len(got) == len(rec) - 1
+    np.testing.assert_array_equal(got.t, np.delete(rec.t, 100))
+    restart = _restamped(imu["mag"], 1.0, 50.0)
+    restart.t[600:] -= 50.0  # the logger restarted: no lone stamp, the clock steps back and runs on
+    assert drop_stamp_glitches(restart)[1].size == 0
+    swapped = _restamped(imu["mag"], 1.0, 50.0)
+    swapped.t[[200, 201]] = swapped.t[[201, 200]]  # two samples swapped: a small step back, left to continue_clock
+    assert drop_stamp_glitches(swapped)[1].size == 0
 
 
 @pytest.mark.parametrize("command", ["calibrate", "diagnose"])
