@@ -631,7 +631,7 @@ class MargCalNode(Node):
 
     def _follow_frame(self, s: str, frame_id: str) -> None:
         """Another frame carries the topic now (``FRAME_TAKEOVER``): calibrate that one, from nothing (the old frame's
-        calibration and samples are another sensor's, or a stray frame_id's)."""
+        calibration, samples and choice of stamps are another sensor's, or a stray frame_id's)."""
         traffic = self._traffic[s]
         self.get_logger().warning(
             f"{s}: {FRAME_TAKEOVER_SHARE:.0%} of the last {FRAME_TAKEOVER} messages carry frame_id {_shown(frame_id)}, not "
@@ -641,6 +641,8 @@ class MargCalNode(Node):
         traffic.reset_base = traffic.received - 1  # the worker counts from this message on
         self._calibration[s] = None
         self._withheld.discard(s)
+        old = self._stamps[s]  # the new frame's driver: its header stamps judged afresh (stamp_source auto)
+        self._stamps[s] = StampSource(old.mode, old.stream)
         self._worker.request("reset_sensor", s)
 
     def _pinned(self, s: str, v: Any) -> bool:

@@ -669,12 +669,13 @@ def test_the_sensor_follows_the_frame_that_carries_the_topic(harness: Harness, s
     # the driver now says mag_link: its first 180 messages are another frame's (the window counts from its second),
     # then the sensor follows it
     later = replace(stream, t=stream.t + 100.0)
+    node._stamps["mag"].fell_back = True  # as if imu_link's driver had broken stamps: mag_link's are judged afresh
     harness.send(mag_msg(harness.c, float(t), v, frame_id="mag_link") for t, v in zip(later.t[:180], later.raw[:180],
                                                                                         strict=True))
     assert node._traffic["mag"].frame == "imu_link" and node.calibrations["mag"] is before
     harness.send(mag_msg(harness.c, float(t), v, frame_id="mag_link") for t, v in zip(later.t[180:], later.raw[180:],
                                                                                         strict=True))
-    assert node._traffic["mag"].frame == "mag_link"
+    assert node._traffic["mag"].frame == "mag_link" and node._stamps["mag"].using == "header"
     assert harness.spin_until(lambda: node.calibrations["mag"] is not None and node.calibrations["mag"] is not before, 10.0)
     harness.status.clear()
     harness.spin_until(lambda: bool(harness.status), 3.0)
