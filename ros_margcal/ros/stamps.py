@@ -7,10 +7,11 @@ calibrated. ``StampSource`` chooses per sample, for the node's ``stamp_source`` 
 - ``"header"``: always the header stamp (a driver with good stamps; replay-like behaviour);
 - ``"receive"``: always the receive time (the node clock when the callback runs);
 - ``"auto"`` (default): the header stamp while it is usable; when ``FALLBACK_BAD`` of the last
-  ``FALLBACK_WINDOW`` stamps are zero or do not increase, the source switches to the receive time for
-  good and says so once (``warning``), so a driver with broken stamps is calibrated on receive times and
-  one with good stamps keeps them: a single stray stamp (one zero, a clock reset) is passed on, and the
-  calibrator drops it and counts it (``backwards_stamp``), instead of moving the stream to receive times.
+  ``FALLBACK_WINDOW`` stamps are zero, go backwards or repeat the two before, the source switches to the
+  receive time for good and says so once (``warning``), so a driver with broken stamps is calibrated on
+  receive times and one with good stamps keeps them: a single stray stamp (one zero, a clock reset) is
+  passed on, and the calibrator drops it and counts it (``backwards_stamp``), instead of moving the stream
+  to receive times; a message published twice (its stamp repeated once) is dropped as ``repeated_stamp``.
 
 Receive times are spaced at least ``min_step`` apart (``RECEIVE_CATCH_UP_S`` at most behind): DDS hands
 messages over in bunches, whose receive times, microseconds apart, the calibrator dropped as bursts (197
@@ -51,6 +52,7 @@ class StampSource:
         self.fell_back = False
         self.warning: str | None = None
         self._last_header: float | None = None
+        self._before_last: float | None = None
         self._bad: deque[bool] = deque(maxlen=FALLBACK_WINDOW)
         self._last_receive = -math.inf
 
@@ -64,26 +66,26 @@ class StampSource:
         function giving it, called only when the receive time is used); receive times at least ``min_step``
         after the last one given (the calibrator's ``min_period_s``: see the module docstring).
 
-        In ``auto`` mode ``FALLBACK_BAD`` unusable header stamps (zero, repeated or going backwards) among the
-        last ``FALLBACK_WINDOW`` switch to the receive time for good and set ``warning`` once (the caller logs
+        In ``auto`` mode ``FALLBACK_BAD`` unusable header stamps (zero, going backwards, or equal to the two before)
+        among the last ``FALLBACK_WINDOW`` switch to the receive time for good and set ``warning`` once (the caller logs
         it and clears it); fewer are passed on as they are.
         """
         if self.mode == "header":
             return header_t
         if self.mode == "receive" or self.fell_back:
             return self._receive(receive_t, min_step)
-        last = self._last_header
-        bad = header_t <= 0.0 or (last is not None and header_t <= last)
+        last, before = self._last_header, self._before_last
+        bad = header_t <= 0.0 or (last is not None and (header_t < last or header_t == last == before))
         self._bad.append(bad)
-        self._last_header = header_t
+        self._last_header, self._before_last = header_t, last
         if bad and sum(self._bad) >= FALLBACK_BAD:
             self.fell_back = True
             why = ("zero" if header_t == 0.0 else "negative (a stamp beyond 2038 wraps int32 sec)" if header_t < 0.0
                    else "repeated" if header_t == last else "going backwards")
             after = "" if last is None else f" after {last:.9f} s"
-            self.warning = (f"{self.stream}: {sum(self._bad)} of the last {len(self._bad)} header stamps are zero or not "
-                            f"increasing, the last {why} ({header_t:.9f} s{after}); using the receive time from now on "
-                            "(set stamp_source to 'header' or 'receive' to choose)")
+            self.warning = (f"{self.stream}: {sum(self._bad)} of the last {len(self._bad)} header stamps are zero, going "
+                            f"backwards or repeated, the last {why} ({header_t:.9f} s{after}); using the receive time from "
+                            "now on (set stamp_source to 'header' or 'receive' to choose)")
             return self._receive(receive_t, min_step)
         return header_t
 

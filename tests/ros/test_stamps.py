@@ -25,7 +25,7 @@ def test_auto_keeps_good_header_stamps() -> None:
     assert src.using == "header" and src.pop_warning() is None
 
 
-@pytest.mark.parametrize(("stamps", "why", "switch"), [([0.0] * 5, "zero", 2), ([2.0] * 5, "repeated", 3),
+@pytest.mark.parametrize(("stamps", "why", "switch"), [([0.0] * 5, "zero", 2), ([2.0] * 6, "repeated", 4),
                                                        ([2.0, 1.5, 1.4, 3.0, 2.5, 4.0], "backwards", 4)])
 def test_auto_falls_back_to_receive_time_once(stamps: list[float], why: str, switch: int) -> None:
     """The third unusable stamp of the last 20 switches to the receive time, for good, with one warning."""
@@ -56,6 +56,18 @@ def test_auto_passes_a_stray_stamp_on() -> None:
         cal.push(t, (20e-6 + 1e-7 * k, 5e-6, -30e-6))
     assert src.using == "header" and src.pop_warning() is None
     assert cal.dropped["backwards_stamp"] + cal.dropped["repeated_stamp"] >= 2
+
+
+def test_auto_keeps_header_stamps_of_messages_published_twice() -> None:
+    """A driver that publishes every message twice repeats each stamp once: the header stamps are kept and the
+    calibrator drops the copies as repeated (on receive times, spaced out, the copies were taken as samples)."""
+    src = StampSource("auto", "imu/mag")
+    cal = SensorCalibrator("mag")
+    for k in range(400):
+        h = 1.0 + 0.01 * (k // 2)
+        assert src.choose(h, 1000.0 + 1e-4 * k) == h
+        cal.push(h, (20e-6 + 1e-7 * (k // 2), 5e-6, -30e-6))
+    assert src.using == "header" and cal.dropped["repeated_stamp"] == 200
 
 
 def test_receive_times_in_bunches_are_spaced_not_dropped() -> None:
