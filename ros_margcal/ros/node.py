@@ -44,7 +44,7 @@ the magnetometer's frame), whichever topic the executor serves first (``pairing.
 accelerometer disabled the Imu topic is still subscribed for the rates.
 
 Sample times come from the header stamp or the receive time (``stamp_source``: ``auto`` uses the
-header stamp until 3 of the last 20 are zero, go backwards or repeat the two before, then the receive time,
+header stamp until 2 of the last 20 are zero, go backwards or repeat the two before, then the receive time,
 with one warning; receive times spaced beyond the calibrator's burst period: ``stamps.py``).
 
 Parameters are declared with descriptors and ranges (defaults in ``msg_configs/margcal.yaml``,
@@ -354,7 +354,7 @@ class MargCalNode(Node):
             description="trained validator JSON (margcal train-validator); '' = the shipped one", read_only=True))
         self.declare_parameter("stamp_source", "auto", ParameterDescriptor(
             description="sample time: 'header' stamp, 'receive' time, or 'auto' (header, falling back to the receive "
-                        "time for good when 3 of the last 20 stamps are zero, go backwards or repeat the two before)",
+                        "time for good when 2 of the last 20 stamps are zero, go backwards or repeat the two before)",
             read_only=True,
             additional_constraints="one of: " + ", ".join(STAMP_SOURCES)))
         self.declare_parameter("queue_depth", 1000, _idesc(

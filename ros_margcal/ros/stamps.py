@@ -29,7 +29,7 @@ __all__ = ["STAMP_SOURCES", "StampSource"]
 STAMP_SOURCES = ("auto", "header", "receive")
 FALLBACK_WINDOW = 20
 """``auto``: the last header stamps whose unusable ones are counted."""
-FALLBACK_BAD = 3
+FALLBACK_BAD = 2
 """``auto``: unusable stamps among the last ``FALLBACK_WINDOW`` that switch to the receive time."""
 RECEIVE_CATCH_UP_S = 0.05
 """Receive times are moved at most this much later to keep ``min_step`` apart (beyond: a real burst)."""

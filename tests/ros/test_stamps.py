@@ -6,7 +6,7 @@ import itertools
 
 import pytest
 
-from ros_margcal.ros.stamps import RECEIVE_CATCH_UP_S, StampSource
+from ros_margcal.ros.stamps import FALLBACK_BAD, RECEIVE_CATCH_UP_S, StampSource
 from ros_margcal.stream.calibrator import SensorCalibrator
 
 
@@ -25,17 +25,17 @@ def test_auto_keeps_good_header_stamps() -> None:
     assert src.using == "header" and src.pop_warning() is None
 
 
-@pytest.mark.parametrize(("stamps", "why", "switch"), [([0.0] * 5, "zero", 2), ([2.0] * 6, "repeated", 4),
-                                                       ([2.0, 1.5, 1.4, 3.0, 2.5, 4.0], "backwards", 4)])
+@pytest.mark.parametrize(("stamps", "why", "switch"), [([0.0] * 5, "zero", 1), ([2.0] * 6, "repeated", 3),
+                                                       ([2.0, 1.5, 1.4, 3.0, 2.5, 4.0], "backwards", 2)])
 def test_auto_falls_back_to_receive_time_once(stamps: list[float], why: str, switch: int) -> None:
-    """The third unusable stamp of the last 20 switches to the receive time, for good, with one warning."""
+    """The second unusable stamp of the last 20 switches to the receive time, for good, with one warning."""
     src = StampSource("auto", "imu/mag")
     out = [src.choose(h, 10.0 + k) for k, h in enumerate(stamps)]
     assert out[:switch] == stamps[:switch]
     assert out[switch:] == [10.0 + k for k in range(switch, len(stamps))]
     assert src.using == "receive"
     w = src.pop_warning()
-    assert w is not None and "imu/mag" in w and why in w and "receive time" in w and "3 of the last" in w
+    assert w is not None and "imu/mag" in w and why in w and "receive time" in w and "2 of the last" in w
     src.choose(50.0, 20.0)  # a good stamp later does not switch back, and there is no second warning
     assert src.using == "receive" and src.pop_warning() is None
 
@@ -88,6 +88,25 @@ def test_receive_times_in_bunches_are_spaced_not_dropped() -> None:
     assert out[-1] <= 2e-3 + RECEIVE_CATCH_UP_S + step
 
 
+def test_constant_stamps_are_all_dropped_unless_auto() -> None:
+    """The failure the parameter exists for: a constant stamp drops every sample but the first on header time
+    (receive times are the node clock, 1.7e9 s of ROS time, after the bad stamp)."""
+    header_only, auto = SensorCalibrator("mag"), SensorCalibrator("mag")
+    hdr, src = StampSource("header"), StampSource("auto")
+    for k in range(100):
+        v = (20e-6 + 1e-7 * k, 5e-6, -30e-6)
+        header_only.push(hdr.choose(7.0, 0.02 * k + 1.7e9), v)
+        auto.push(src.choose(7.0, 0.02 * k + 1.7e9), v)
+    assert header_only.dropped["repeated_stamp"] == 99
+    # auto switches to the receive time once: the intake sees one jump to a new time base (stream/intake.py)
+    # and spends at most new_time_base_after - 1 samples confirming it, instead of dropping all but one
+    # (after the stamps that repeat the one before and the next switches: stamps.FALLBACK_BAD)
+    assert auto.dropped["repeated_stamp"] == FALLBACK_BAD
+    assert auto.status().time_base_resets == 1
+    assert auto.passed >= 100 - FALLBACK_BAD - (auto.config.new_time_base_after - 1)
+
+
+
 def test_receive_time_is_asked_for_only_when_used() -> None:
     calls = []
 
@@ -97,7 +116,7 @@ def test_receive_time_is_asked_for_only_when_used() -> None:
 
     src = StampSource("auto")
     assert src.choose(1.0, now) == 1.0 and src.choose(2.0, now) == 2.0 and not calls
-    assert [src.choose(0.0, now) for _ in range(3)] == [0.0, 0.0, 101.0] and len(calls) == 1
+    assert [src.choose(0.0, now) for _ in range(2)] == [0.0, 101.0] and len(calls) == 1
     assert StampSource("header").choose(0.0, now) == 0.0 and len(calls) == 1
 
 
