@@ -304,14 +304,6 @@ class SensorCalibrator(ChangeDetection, Evaluation):
 
     # -- the sample path --------------------------------------------------------------------------
 
-    def _rel_error(self, x: float, y: float, z: float) -> float:
-        w = self._w
-        x, y, z = x - w[9], y - w[10], z - w[11]
-        hx = w[0] * x + w[1] * y + w[2] * z
-        hy = w[3] * x + w[4] * y + w[5] * z
-        hz = w[6] * x + w[7] * y + w[8] * z
-        return abs(math.sqrt(hx * hx + hy * hy + hz * hz) / w[12] - 1.0)
-
     def push(self, t: float, xyz: ArrayLike, gyro: ArrayLike | None = None) -> list[Event]:
         """Feed one raw sample at message time ``t`` (seconds); returns what happened (often nothing).
 
@@ -363,13 +355,14 @@ class SensorCalibrator(ChangeDetection, Evaluation):
             self._rail_found()
         self._t = t
         if self._gate is None:  # the magnetometer: held back while it may be a spike (intake.SpikeFilter)
-            spikes = self._spikes
-            pending = spikes.pending
-            out, n = spikes.push((t, x, y, z, g))
-            self.passed += spikes.pending - pending  # a held sample counts as passed until it is a spike
+            out, n = self._spikes.push((t, x, y, z, g))
+            self.passed += 1 - len(out) - n  # the change in samples held: a held one counts as passed until it is a spike
             if n:
                 self.dropped["spike"] += n
-            return events + self._hand_on(out) if out else events
+            if not out:
+                return events
+            handed = self._hand_on(out)
+            return events + handed if events else handed
         out = self._gate.push(t, (x, y, z), g)
         if out is None:
             self.passed += 1  # handed to the gate, which keeps it inside a window (or finds motion)
@@ -468,12 +461,20 @@ class SensorCalibrator(ChangeDetection, Evaluation):
         cfg = self.config
         if self._figures_due is not None and not self._hold_figures:  # the last full fit's figures, a push after it
             self._settle_figures()
-        r = self._rel_error(x, y, z) if self._cal is not None else 0.0
+        r = 0.0
+        if self._cal is not None:  # the relative norm error under the current calibration, W (v - b) against its norm
+            w00, w01, w02, w10, w11, w12, w20, w21, w22, bx, by, bz, norm = self._w
+            dx, dy, dz = x - bx, y - by, z - bz
+            hx = w00 * dx + w01 * dy + w02 * dz
+            hy = w10 * dx + w11 * dy + w12 * dz
+            hz = w20 * dx + w21 * dy + w22 * dz
+            r = abs(math.sqrt(hx * hx + hy * hy + hz * hz) / norm - 1.0)
+        v = (x, y, z)
         self._recent_t.append(t)
-        self._recent_v.append((x, y, z))
+        self._recent_v.append(v)
         if self._cal is None or self._early_installed:  # once neither, no early fit runs again (partial._early_open)
             self._early_t.append(t)
-            self._early_v.append((x, y, z))
+            self._early_v.append(v)
         self._recent_r.append(r)
         self._series_push(t, x, y, z)
         if self._cal is not None and not self._changed:

@@ -217,11 +217,12 @@ class PartialCalibration:
         cfg = self.config
         if self._cal is not None and not self._changed and self._partial is None:
             every, interval = cfg.refit_every, cfg.recheck_interval_s
-        elif self._early_open() and self._early_close and cfg.early_fit and cfg.partial_fit:
+        elif self._early_close and cfg.early_fit and cfg.partial_fit and self._early_open():  # the call last (per sample)
             every, interval = max(1, cfg.refit_every // 2), min(cfg.refit_min_interval_s, cfg.early_interval_s)
         else:
             every, interval = cfg.refit_every, cfg.refit_min_interval_s
-        return every, max(0.0, interval - 1e-6)
+        interval -= 1e-6
+        return every, interval if interval > 0.0 else 0.0  # max(0.0, interval) without the call (once per sample)
 
     def _partial_noise(self, job: dict[str, Any]) -> None:
         """Remember the noise of a series fit's residuals and its solution for the next series fit: a solution
