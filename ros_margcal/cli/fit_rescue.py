@@ -48,7 +48,7 @@ from ..model.fitting import fit
 from ..model.fitting_prior import PriorFit, broad_prior, fit_with_prior
 from ..model.heading import UNDETERMINED_DEG, format_bound, heading_p95_quantile, heading_p95_typical
 from ..recordings import MAX_STAMP_S
-from ..stream.config import STATIC_SPREAD, PipelineConfig, plausibility, relative_spread, residual_limit
+from ..stream.config import STATIC_SPREAD, PipelineConfig, plausibility, relative_spread, relative_std, residual_limit
 from ..stream.observable import (
     DEFAULT_INCLINATION_DEG,
     NEAR_LEVEL_NORM_REL_STD,
@@ -492,8 +492,14 @@ def rescue(t: Array | None, points: Array, *, failure: str, model: str, norm: fl
     part = _prior_part("prior fit", pts, norm, sensor, unit, stamp, cfg)
     pf = part.prior_fit
     assert pf is not None
-    reason = (f"partial coverage: the directions determine {', '.join(pf.updated) or 'no parameter'}; "
-              f"{', '.join(pf.from_prior) or 'none'} kept from the broad prior ({_prior_text(pf)})")
+    max_std = (cfg or PipelineConfig.for_sensor(sensor)).max_parameter_std  # the guard rails' standard
+    rel = relative_std(pf.calibration)
+    firm = [n for n in pf.updated if rel.get(n, math.inf) <= max_std]
+    loose = [n for n in pf.updated if n not in firm]  # narrowed from the prior, not determined: the guard refuses them
+    reason = (f"partial coverage: the directions determine {', '.join(firm) or 'no parameter'} (std <= "
+              f"{100 * max_std:.3g} %)"
+              + (f"; narrow {', '.join(loose)} without determining {'it' if len(loose) == 1 else 'them'}" if loose else "")
+              + f"; {', '.join(pf.from_prior) or 'none'} kept from the broad prior ({_prior_text(pf)})")
     lines = [f"requested fit: {failure}", reason]
     if pf.level and cfg is not None:
         lines.append(f"near-level ring: the readings leave their ring's plane by {ring_tilt_deg(pts):.2g} deg <= "
