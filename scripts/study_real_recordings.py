@@ -42,8 +42,9 @@ import yaml
 from ros_margcal.cli.calibrate import still_samples
 from ros_margcal.cli.calibrate_guard import refusal
 from ros_margcal.cli.fit_rescue import Part, check, config_for, rescue, residual_note, rests_apart
+from ros_margcal.cli.raw_units import resolve_unit
 from ros_margcal.model.calibration import Calibration
-from ros_margcal.model.errors import ConvergenceError, DegenerateDataError, RecordingError
+from ros_margcal.model.errors import ConfigError, ConvergenceError, DegenerateDataError, RecordingError
 from ros_margcal.model.fitting import fit
 from ros_margcal.model.heading import attitudes
 from ros_margcal.recordings.read import read_recording
@@ -151,6 +152,11 @@ def batch_parts(path: Path, sensor: str, unit: str) -> tuple[list[Part], str]:
 
 def study(path: Path, unit: str) -> dict[str, object]:
     sensor = "accel" if path.stem.endswith("_acc") else "mag"
+    try:  # the unit checked as margcal replay and calibrate check it (a gauss file read as counts is refused there)
+        resolve_unit(sensor, read_recording(path, sensor=sensor, order="file").raw, unit, where=f"in {path.name}")
+    except ConfigError as exc:
+        return {"file": path.name, "unit": unit, "n": 0, "state": "refused (unit)", "why": str(exc), "first": None,
+                "batch": "refused (unit)", "offset": None, "level": None, "tilt30": None, "changes": 0}
     out = replay(path, sensor=sensor, unit=unit, status_every=0.0, progress=False)
     cal = out["calibrators"][sensor]
     st = cal.status()
