@@ -21,7 +21,8 @@ logger restart) keeps the recording in file order: the ellipsoid does not depend
 stamps before each restart are moved back to run on into the last clock, for the gate, the change
 search and the calibration's stamp (``recordings.continue_clock``). ``--norm`` must be within
 ``NORM_RATIO`` of the readings' scale (the output unit may differ from the raw one, but not by
-10^300), ``--f-scale`` of ``--norm``.
+10^300), ``--f-scale`` of ``--norm``. Without ``--norm`` an accelerometer in a known unit is fitted with gravity
+fixed, as the stream fits it (a fitted norm takes the gains' mean scale: the output would read it at rest).
 
 ``--unit`` is the recording's raw unit, checked against the readings or inferred from them
 (``raw_units``); all-zero rows are dropped and counted. Whatever is fitted passes the stream's guard
@@ -368,7 +369,9 @@ def run(args: argparse.Namespace) -> int:
     extra: dict[str, Any] = {"dropped": dropped} if dropped else {}
     model = args.model or _DEFAULT_MODEL.get(args.method, "sym")
     prior_norm, fixed = _prior_norm(args, cfg)
-    norm = args.norm if cfg.sensor == "accel" or cfg.field_model() is None else prior_norm  # the model's for a mag
+    # an accelerometer's gravity in a known unit, as the stream fixes it (fitted, the norm took the gains' mean scale
+    # and the written calibration read 1.006 g at rest); a magnetometer's the model field's, else the data's
+    norm = prior_norm if cfg.sensor == "accel" or cfg.field_model() is not None else args.norm
     _check_scales(norm, args.f_scale, points)
     iters = {"max_iter": overrides["max_iter"]} if "max_iter" in overrides else {}
     try:

@@ -13,6 +13,7 @@ from ros_margcal.cli import main
 from ros_margcal.cli.calibrate_guard import EXIT_REFUSED
 from ros_margcal.coverage.gate import InactivityGate
 from ros_margcal.model.calibration import Calibration
+from ros_margcal.model.calibration_file import load_calibrations
 from ros_margcal.recordings.read import read_recording
 from ros_margcal.stream.calibrator import SensorCalibrator, State
 from ros_margcal.stream.config import PipelineConfig, plausibility
@@ -163,6 +164,24 @@ def test_poses_that_leave_a_cross_term_loose_say_which_pose_is_missing(tmp_path:
     err = capsys.readouterr().err
     assert code == EXIT_REFUSED and not (tmp_path / "out.yaml").exists(), err
     assert "std of w_xy" in err and "between the x and y axes" in err, err
+
+
+@pytest.mark.parametrize("model", ["sym", "diag"])
+def test_calibrate_makes_an_accelerometer_read_gravity_as_the_stream_does(tmp_path: Path, model: str) -> None:
+    """Twelve poses of a part whose gains average 1.0067: ``calibrate`` fitted the norm too, which took that mean
+    scale (1.00637 g) and left W's mean diagonal at 1, so the written calibration read 1.006 g at rest; gravity is
+    now fixed as in the stream, and W undoes the gains."""
+    ups = [(0, 0, 1), (0, 0, -1), (1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (1, 1, 0), (1, 0, 1), (0, 1, 1),
+           (-1, -1, 1), (1, -1, -1), (-1, 1, -1)]
+    t, raw = _held(np.random.default_rng(5), ups, rest_s=5.0)
+    csv, out = tmp_path / "poses_acc.csv", tmp_path / "out.yaml"
+    np.savetxt(csv, np.column_stack([t, raw]), delimiter=",", header="t,x,y,z", comments="")
+    assert main(["calibrate", str(csv), "--sensor", "accel", "--unit", "g", "--model", model, "-o", str(out)]) == 0
+    cal = load_calibrations(out)["accel"]
+    assert cal.norm == 1.0
+    np.testing.assert_allclose(np.diag(cal.matrix), 1.0 / np.array([1.03, 0.97, 1.02]), atol=3e-3)
+    still = raw[: int(5.0 * RATE)]  # the first pose, z up
+    assert abs(float(np.median(np.linalg.norm(cal.apply(still), axis=1))) - 1.0) < 2e-3
 
 
 def test_the_partial_coverage_line_of_calibrate_agrees_with_its_guard_rails(tmp_path: Path,
