@@ -50,7 +50,7 @@ from ..model.mounting import UP_AXES
 from .units import ACCEL_UNITS, GRAVITY, LEARN_SAMPLES, MAG_UNITS, other_sensors_unit, unit_scale
 
 __all__ = ["ACCEL_UNITS", "FIELD_SPECS", "GRAVITY", "GYRO_PAIR_S", "MAG_UNITS", "MOTION_NOT_NOISE", "RESIDUAL_NOISE_FACTOR",
-           "STATIC_SPREAD", "FieldSpec", "PipelineConfig", "apart", "guard_rails", "plausibility", "raise_hint",
+           "STATIC_SPREAD", "STILL_SPREAD", "FieldSpec", "PipelineConfig", "apart", "guard_rails", "plausibility", "raise_hint",
            "readings_for", "relative_spread", "relative_std", "residual_limit", "rms_relative", "white_noise"]
 
 EARTH_FIELD_RANGE_T = (20e-6, 70e-6)
@@ -61,6 +61,13 @@ stamps are at most this far apart, s, of its frame_id or of the only Imu frame (
 STATIC_SPREAD = 0.03
 """RMS distance of readings from their mean, over their mean norm, below which the sensor has not turned
 (an HMC5883L at rest: 0.2 %; a full turn with an offset of 10 field norms: about 10 %)."""
+
+
+STILL_SPREAD = STATIC_SPREAD / 3
+"""Readings this close to their mean (``relative_spread``) are a still sensor's noise, whatever the unit: no sphere's
+centre (the direction bins) and no ring (a partial fit) is fitted to them; a third of ``STATIC_SPREAD``, so that a
+turning sensor whose offset is 30 field norms is not taken for still (a still HMC5883L in counts, 0.13 %, had "38 %
+coverage" and "the field turned through 50 % of the azimuths" beside "the sensor has not turned")."""
 
 
 def relative_spread(points: NDArray[np.float64]) -> float:

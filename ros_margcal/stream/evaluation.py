@@ -45,7 +45,7 @@ from ..model.calibration import Calibration
 from ..model.errors import MargCalError, RunawayError
 from ..model.fitting import fit
 from ..model.steps import Steps, drained
-from .config import PipelineConfig, apart, guard_rails, white_noise
+from .config import STILL_SPREAD, PipelineConfig, apart, guard_rails, relative_spread, white_noise
 from .observable import side_axis
 from .partial import PartialCalibration
 from .status import Event, EventKind, State, pct
@@ -84,7 +84,8 @@ class Evaluation(PartialCalibration):
     MIN_SPHERE_SHARE = 0.5
     """A sphere fit whose radius is below this share of the unit's smallest plausible field (``norm_min``) is the
     noise of a sensor that has barely turned, not the field's sphere: the centre stays (a still BROAD recording after
-    its magnet: a 1.1 uT sphere about the readings themselves, every direction bin filled, "100 % coverage")."""
+    its magnet: a 1.1 uT sphere about the readings themselves, every direction bin filled, "100 % coverage"); nor
+    does one of readings within ``config.STILL_SPREAD`` of their mean, whatever the unit."""
     defer_evaluation: bool = False
     """False (replay, the node's worker process): a due evaluation (centre, validator, fit) runs inside ``push``.
     True: ``push`` only records it and ``run_pending`` runs it, e.g. on a worker thread, so the
@@ -179,11 +180,11 @@ class Evaluation(PartialCalibration):
 
     def _update_center(self) -> None:
         """Before a calibration (or after a change): the direction bins' centre from a sphere fit of the buffer, kept
-        when it barely moved or its radius is no field's (``MIN_SPHERE_SHARE``)."""
+        when it barely moved, its radius is no field's or the readings barely spread (``MIN_SPHERE_SHARE``)."""
         if self._cal is not None and not self._changed:
             return
         pts = np.concatenate([self._buffer.points(), self._recent_points()])
-        if len(pts) < 10:
+        if len(pts) < 10 or relative_spread(pts) < STILL_SPREAD:
             return
         # centre and radius from a linear sphere fit (cheap); the LM fit refines it later
         a = np.c_[2.0 * pts, np.ones(len(pts))]

@@ -133,7 +133,17 @@ from ..model.heading import (
 )
 from ..model.mounting import Mounting
 from ..model.steps import Steps, drained
-from .config import STATIC_SPREAD, PipelineConfig, apart, guard_rails, readings_for, relative_spread, relative_std, rms_relative
+from .config import (
+    STATIC_SPREAD,
+    STILL_SPREAD,
+    PipelineConfig,
+    apart,
+    guard_rails,
+    readings_for,
+    relative_spread,
+    relative_std,
+    rms_relative,
+)
 
 __all__ = ["AZIMUTH_SECTORS", "DEFAULT_INCLINATION_DEG", "NEAR_LEVEL_NORM_REL_STD", "NEAR_LEVEL_TILT_DEG", "RING_AXIS_MAX_DEG",
            "RING_FLAT", "SIGMA_REUSE_TOLERANCE", "HeadingFigures", "PartialResult", "azimuth_coverage", "azimuth_sector",
@@ -553,6 +563,9 @@ def partial_fit_steps(series: Array, prior: Calibration | None, cfg: PipelineCon
             kind = "broad"
         # a near-level ring without a usable gyro: the level term (model.fitting_level), from every default start
         # (a previous solution may sit in the flat ring's valley of a large norm and a nearly vertical field)
+        if sensor == "mag" and relative_spread(np.asarray(series)[:, :3]) < STILL_SPREAD:  # noise about one reading
+            return PartialResult(None, (), SYM_NAMES, kind, math.nan, math.inf, None,
+                                 "partial fit: none (the readings have not turned)")
         thick = ring_tilt_deg(series) if sensor == "mag" else math.inf
         level = level_ok and thick <= cfg.near_level_tilt_deg
         norm = cfg.reference_norm or (prior.norm if prior is not None else sphere_radius(series))

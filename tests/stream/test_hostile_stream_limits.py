@@ -125,3 +125,17 @@ def test_clean_counts_are_never_relearnt() -> None:
     msg = cal.status().message
     assert cal.state is State.CALIBRATED and "learnt from the first 20 samples" in msg and "relearnt" not in msg
     assert sum(cal.dropped.values()) == 0
+
+
+def test_a_still_magnetometer_in_counts_claims_no_coverage_and_no_turning() -> None:
+    """A still HMC5883L in raw counts (a real one: 1079 +- 1 counts, 0.13 % spread) had "38 % coverage" and "partial
+    fit: the field turned through 50 % of the azimuths" beside "the sensor has not turned": its noise had been taken for
+    a sphere (the direction bins centred inside it) and for a ring (config.STILL_SPREAD)."""
+    rng = np.random.default_rng(71)
+    cal = SensorCalibrator("mag", PipelineConfig.for_sensor("mag", "counts"))
+    for k in range(600):
+        cal.push(0.1 * k, np.round(np.array([-430.0, 650.0, -750.0]) + rng.normal(scale=0.8, size=3)))
+    st = cal.status()
+    assert st.state is State.COLLECTING and "the sensor has not turned" in st.message, st.message
+    assert "azimuths" not in st.message and "partial fit: none (the readings have not turned)" in st.message, st.message
+    assert st.coverage < 0.05, (st.coverage, st.message)
