@@ -412,7 +412,8 @@ class Evaluation(PartialCalibration):
     def _side_hint(self, job: dict[str, Any]) -> str:
         """What a refused partial fit's note adds when its readings trace a ring about the magnetometer's x or y axis
         (``observable.side_axis``) and nothing turns them (no ``up_axis``, no gyro to find the mounting): "" else."""
-        if self.config.up_axis.lstrip("+") != "z" or job.get("gyro_seen") or job.get("mount_applied") is not None:
+        if (self.sensor != "mag" or self.config.up_axis.lstrip("+") != "z" or job.get("gyro_seen")
+                or job.get("mount_applied") is not None):  # (an accelerometer's poses about x are a pose set's start)
             return ""
         axis = side_axis(np.asarray(job["series"], dtype=np.float64))
         return "" if not axis else (

@@ -166,6 +166,19 @@ def test_poses_that_leave_a_cross_term_loose_say_which_pose_is_missing(tmp_path:
     assert "std of w_xy" in err and "between the x and y axes" in err, err
 
 
+def test_poses_about_one_axis_are_not_called_a_magnetometer_on_its_side() -> None:
+    """An accelerometer turned through poses about its x axis first (the LSM9DS1 pose log's first two minutes) was
+    told "the readings trace a ring about the magnetometer's x axis ... set accel.up_axis=x", an option the
+    accelerometer refuses: the hint is the magnetometer's alone; the poses it needs are named instead."""
+    ups = [(0, 0, 1), (0, 1, 1), (0, 1, 0), (0, 1, -1), (0, 0, -1), (0, -1, -1), (0, -1, 0), (0, -1, 1)]
+    t, raw = _held(np.random.default_rng(63), ups, rest_s=5.0)
+    cal = SensorCalibrator("accel", PipelineConfig.for_sensor("accel", "g"))
+    _run(cal, t, raw)
+    msg = cal.status().message
+    assert "partial fit (not published for the accel)" in msg and "poses with x pointing up and down" in msg, msg
+    assert "up_axis" not in msg and "magnetometer" not in msg, msg
+
+
 @pytest.mark.parametrize("model", ["sym", "diag"])
 def test_calibrate_makes_an_accelerometer_read_gravity_as_the_stream_does(tmp_path: Path, model: str) -> None:
     """Twelve poses of a part whose gains average 1.0067: ``calibrate`` fitted the norm too, which took that mean
