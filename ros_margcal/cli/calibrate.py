@@ -165,16 +165,15 @@ def register(subparsers: Any) -> None:
     p.set_defaults(func=run)  # fmt: skip
 
 
-def still_samples(rec: Any, cfg: PipelineConfig | None = None) -> np.ndarray:
-    """Averaged still samples of an accelerometer stream through the inactivity gate (Gietzelt Sec. 2.4), with the
-    gate options of ``cfg`` (the defaults without). With ``gate_learn_noise`` (the default) a first pass learns the
-    sensor's rest noise over the whole recording and a second gates with those thresholds, so the still periods
+def _gated(rec: Any, window: float, cv: float, learn: bool) -> tuple[list[np.ndarray], tuple[float, float], str, float, float]:
+    """One pass of the inactivity gate (``window`` s) over ``rec``: the averaged still samples, the quietest window's
+    (CV, axis spread) while none passed, what was learnt and the thresholds used. With ``learn`` a first pass learns
+    the sensor's rest noise over the whole recording and a second gates with those thresholds, so the still periods
     before the learning settled count too."""
-    window, cv = (2.0, 3e-3) if cfg is None else (cfg.gate_window_s, cfg.gate_cv_threshold)
     gyro = rec.gyro
     axis = cv
     learnt = ""
-    if cfg is None or cfg.gate_learn_noise:
+    if learn:
         probe = InactivityGate(window_s=window, cv_threshold=cv, learn=True)
         for i in range(len(rec.t)):
             probe.push(rec.t[i], rec.raw[i], None if gyro is None else gyro[i])
@@ -188,9 +187,34 @@ def still_samples(rec: Any, cfg: PipelineConfig | None = None) -> np.ndarray:
             out.append(avg)
         elif not out and max(gate.window_stats) < max(quietest):
             quietest = gate.window_stats
+    return out, quietest, learnt, cv, axis
+
+
+def _poses(samples: list[np.ndarray], apart_deg: float = 10.0) -> int:
+    """How many poses still samples hold: directions more than ``apart_deg`` from every pose counted before."""
+    poses: list[np.ndarray] = []
+    for v in samples:
+        u = v / (np.linalg.norm(v) or 1.0)
+        if all(float(u @ p) < math.cos(math.radians(apart_deg)) for p in poses):
+            poses.append(u)
+    return len(poses)
+
+
+def still_samples(rec: Any, cfg: PipelineConfig | None = None) -> np.ndarray:
+    """Averaged still samples of an accelerometer stream through the inactivity gate (Gietzelt Sec. 2.4), with the
+    gate options of ``cfg`` (the defaults without; ``gate_learn_noise``: ``_gated``). When none pass, the error says
+    what would let them: holds shorter than the window (found with half of it), or the sensor's rest noise."""
+    window, cv = (2.0, 3e-3) if cfg is None else (cfg.gate_window_s, cfg.gate_cv_threshold)
+    learn = cfg is None or cfg.gate_learn_noise
+    out, quietest, learnt, cv, axis = _gated(rec, window, cv, learn)
     if not out:
+        short = _gated(rec, window / 2, cv if cfg is None else cfg.gate_cv_threshold, learn)[0]
         quiet = ""
-        if math.isfinite(max(quietest)):
+        poses = _poses(short)
+        if poses >= 2:  # still holds in several poses, each shorter than the window (one pose: its noise)
+            hint = (f"hold each pose for {window:g} s or more, or --set accel.gate_window_s={window / 2:g} (a {window / 2:g} s "
+                    f"window finds {len(short)} still stretches in {poses} poses)")
+        elif math.isfinite(max(quietest)):
             need = float(f"{1.5 * max(quietest):.2g}")
             quiet = f"; its quietest window: CV {quietest[0]:.2g}, axis spread {quietest[1]:.2g}"
             if max(quietest) > LEARN_CAP:  # more than a MEMS part at rest is learnt to show: likely a move

@@ -166,6 +166,21 @@ def test_poses_that_leave_a_cross_term_loose_say_which_pose_is_missing(tmp_path:
     assert "std of w_xy" in err and "between the x and y axes" in err, err
 
 
+def test_calibrate_names_holds_shorter_than_the_gate_window(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Twelve poses held 1.2 s each (a pose log logged faster than its holds were timed for: the LSM9DS1's at 100 Hz):
+    no 2 s window is still, and calibrate asked "was it moving all through?" and for a CV threshold that found nothing;
+    it now names the short holds and the window that finds them, which calibrates."""
+    ups = [(0, 0, 1), (0, 0, -1), (1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (1, 1, 0), (1, 0, 1), (0, 1, 1),
+           (-1, -1, 1), (1, -1, -1), (-1, 1, -1)]
+    t, raw = _held(np.random.default_rng(9), ups, rest_s=1.2)
+    csv = tmp_path / "short_acc.csv"
+    np.savetxt(csv, np.column_stack([t, raw]), delimiter=",", header="t,x,y,z", comments="")
+    assert main(["calibrate", str(csv), "--sensor", "accel", "--unit", "g"]) == 2
+    err = capsys.readouterr().err
+    assert "hold each pose for 2 s or more, or --set accel.gate_window_s=1 " in err and "moving all through" not in err, err
+    assert main(["calibrate", str(csv), "--sensor", "accel", "--unit", "g", "--set", "accel.gate_window_s=1"]) == 0
+
+
 def test_poses_about_one_axis_are_not_called_a_magnetometer_on_its_side() -> None:
     """An accelerometer turned through poses about its x axis first (the LSM9DS1 pose log's first two minutes) was
     told "the readings trace a ring about the magnetometer's x axis ... set accel.up_axis=x", an option the
