@@ -49,7 +49,7 @@ import numpy as np
 
 from ..coverage.gate import LEARN_CAP, InactivityGate
 from ..model.calibration import MODELS, Calibration
-from ..model.calibration_file import calibration_node, load_calibrations, save_calibrations
+from ..model.calibration_file import read_calibration_file, save_calibrations
 from ..model.errors import (
     CalibrationFileError,
     ConfigError,
@@ -204,11 +204,11 @@ def still_samples(rec: Any, cfg: PipelineConfig | None = None) -> np.ndarray:
     """Averaged still samples of an accelerometer stream through the inactivity gate (Gietzelt Sec. 2.4), with the
     gate options of ``cfg`` (the defaults without; ``gate_learn_noise``: ``_gated``). When none pass, the error says
     what would let them: holds shorter than the window (found with half of it), or the sensor's rest noise."""
-    window, cv = (2.0, 3e-3) if cfg is None else (cfg.gate_window_s, cfg.gate_cv_threshold)
+    window, given = (2.0, 3e-3) if cfg is None else (cfg.gate_window_s, cfg.gate_cv_threshold)
     learn = cfg is None or cfg.gate_learn_noise
-    out, quietest, learnt, cv, axis = _gated(rec, window, cv, learn)
+    out, quietest, learnt, cv, axis = _gated(rec, window, given, learn)
     if not out:
-        short = _gated(rec, window / 2, cv if cfg is None else cfg.gate_cv_threshold, learn)[0]
+        short = _gated(rec, window / 2, given, learn)[0]
         quiet = ""
         poses = _poses(short)
         if poses >= 2:  # still holds in several poses, each shorter than the window (one pose: its noise)
@@ -337,23 +337,22 @@ def _prior_norm(args: argparse.Namespace, cfg: PipelineConfig) -> tuple[float | 
     return None, "the readings' sphere radius"
 
 
-def _existing(args: argparse.Namespace) -> dict[str, Calibration]:
-    """The calibrations already in the ``-o`` file (the node's file holds every sensor's): the other sensors' are kept
-    when it is written. A file that is no calibration file is refused (ConfigError) unless --force, not destroyed."""
+def _existing(args: argparse.Namespace) -> tuple[dict[str, Calibration], str]:
+    """The calibrations already in the ``-o`` file (the node's file holds every sensor's) and their node name: the
+    other sensors' are kept when it is written, under that name. A file that is no calibration file is refused
+    (ConfigError) unless --force, not destroyed."""
     out: Path | None = args.output
     if out is None or not out.is_file():  # none yet; a FIFO or a device the save refuses, naming it
-        return {}
+        return {}, "margcal"
     try:
-        cals = load_calibrations(out)
-        args.node = calibration_node(out)  # written again under its own node name
-        return cals
+        return read_calibration_file(out)
     except CalibrationFileError as exc:
         if not args.force:
             msg = (f"-o {out} exists and is no calibration file ({one_line(exc)}); choose another file, or --force "
                    "to replace it")
             raise ConfigError(msg) from exc
         print(f"warning: -o {out} is no calibration file ({one_line(exc)}): replaced (--force)", file=sys.stderr)
-        return {}
+        return {}, "margcal"
 
 
 def _used_options(overrides: dict[str, Any]) -> dict[str, Any]:
@@ -373,7 +372,7 @@ def run(args: argparse.Namespace) -> int:
     sets = parse_sets(args.set)
     check_paths([("the recording", args.input)], [("-o", args.output), ("--json", args.json)])
     position = position_options(args)  # before any work, in the options' own names
-    args.existing = _existing(args)
+    args.existing, args.node = _existing(args)
     rec = read_recording(args.input, sensor=args.sensor, topic=args.topic, order="file")
     n_read, last_stamp = len(rec.t), float(rec.t[-1]) if len(rec.t) else None
     rec, sensor, unit = prepare(_in_file_order(rec), args.sensor, args.unit, str(args.input))
@@ -460,12 +459,12 @@ def _write(args: argparse.Namespace, cals: dict[str, Calibration], results: list
     """Write the calibrations (with the other sensors' of an existing ``-o`` file, said) and the JSON."""
     if args.output is not None:
         sensors = {s for s in (*(c.sensor for c in cals.values()), *(k.partition("_")[0] for k in cals)) if s}
-        kept = {k: c for k, c in getattr(args, "existing", {}).items()
+        kept = {k: c for k, c in args.existing.items()
                 if k.partition("_")[0].partition(":")[0] not in sensors and c.sensor not in sensors}
         if kept:
             print(f"note: {args.output} also held {', '.join(kept)}: kept, only {', '.join(sorted(sensors))} replaced",
                   file=sys.stderr)
-        path = save_calibrations(args.output, {**kept, **cals}, node=getattr(args, "node", "margcal"))
+        path = save_calibrations(args.output, {**kept, **cals}, node=args.node)
         print(f"wrote {path}")
     if args.json is not None:
         d = results[0] if len(results) == 1 else {"calibrations": results}

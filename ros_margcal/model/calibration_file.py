@@ -44,8 +44,8 @@ from numpy.typing import NDArray
 from .calibration import Calibration
 from .errors import CalibrationFileError, one_line
 
-__all__ = ["calibration_from_yaml", "calibration_node", "calibration_to_yaml", "load_calibrations", "read_small_text",
-           "save_calibrations", "write_temp"]
+__all__ = ["calibration_from_yaml", "calibration_to_yaml", "load_calibrations", "read_calibration_file",
+           "read_small_text", "save_calibrations", "write_temp"]
 
 Array = NDArray[np.float64]
 
@@ -104,13 +104,14 @@ def _dump(cals: dict[str, Calibration], node: str) -> str:
     return f"{text}# sha256: {_digest(_load_yaml(text, '<dump>'))}\n"  # digest of what a reader will parse
 
 
-def _block(doc: Any, where: str) -> dict[Any, Any]:
+def _block(doc: Any, where: str) -> tuple[str, dict[Any, Any]]:
+    """The node name and the ``calibration`` block under its ``ros__parameters``."""
     if isinstance(doc, dict):
-        for node_params in doc.values():
+        for node, node_params in doc.items():
             if isinstance(node_params, dict) and isinstance(node_params.get("ros__parameters"), dict):
                 block = node_params["ros__parameters"].get("calibration")
                 if isinstance(block, dict) and block:
-                    return block
+                    return str(node), block
         msg = f"{where} has no '<node>: ros__parameters: calibration:' block"
         raise CalibrationFileError(msg)
     msg = f"{where} is not a ros__parameters calibration file"
@@ -145,9 +146,10 @@ def _check_integrity(text: str, doc: Any, block: dict[Any, Any], where: str) -> 
         raise CalibrationFileError(msg)
 
 
-def _parse(text: str, where: str) -> dict[str, Calibration]:
+def _parse(text: str, where: str) -> tuple[dict[str, Calibration], str]:
+    """The calibrations of a file's text and the node name they are under."""
     doc = _load_yaml(text, where)
-    block = _block(doc, where)
+    node, block = _block(doc, where)
     _check_integrity(text, doc, block, where)
     cals: dict[str, Calibration] = {}
     for key, entry in block.items():
@@ -156,7 +158,7 @@ def _parse(text: str, where: str) -> dict[str, Calibration]:
         except CalibrationFileError as exc:
             msg = f"{where}: sensor {str(key)!r}: {one_line(str(exc))}"
             raise CalibrationFileError(msg) from exc
-    return cals
+    return cals, node
 
 
 def _pid_alive(pid: int) -> bool:
@@ -317,6 +319,13 @@ def read_small_text(p: Path, where: str, what: str = "calibration file", limit: 
 
 def load_calibrations(path: str | os.PathLike[str]) -> dict[str, Calibration]:
     """Read the calibrations of a file written by ``save_calibrations``; CalibrationFileError if unusable."""
+    return read_calibration_file(path)[0]
+
+
+def read_calibration_file(path: str | os.PathLike[str]) -> tuple[dict[str, Calibration], str]:
+    """``load_calibrations`` and the node name the calibrations are under: a file written again keeps it (the node
+    writes its own name; ``margcal calibrate -o`` into a node's file kept the other sensor's calibration but renamed
+    the node ``margcal``). CalibrationFileError if unusable."""
     try:
         p = Path(path)
     except TypeError as exc:
@@ -326,21 +335,6 @@ def load_calibrations(path: str | os.PathLike[str]) -> dict[str, Calibration]:
     return _parse(read_small_text(p, where), where)
 
 
-def calibration_node(path: str | os.PathLike[str]) -> str:
-    """The node name a calibration file's block is under (``"margcal"`` when the file has none): a file written again
-    keeps it (the node writes its own name; ``margcal calibrate -o`` into a node's file kept the other sensor's
-    calibration but renamed the node). CalibrationFileError if the file is unusable."""
-    p = Path(path)
-    where = str(p) if str(p).isprintable() else repr(str(p))
-    doc = _load_yaml(read_small_text(p, where), where)
-    block = _block(doc, where)
-    for key, params in doc.items():
-        inner = params.get("ros__parameters") if isinstance(params, dict) else None
-        if isinstance(inner, dict) and inner.get("calibration") is block:
-            return str(key)
-    return "margcal"
-
-
 def calibration_to_yaml(cal: Calibration, node: str = "margcal") -> str:
     """One calibration alone as a ``ros__parameters`` YAML document (with its checksum line)."""
     return _dump({cal.sensor or "sensor": cal}, node)
@@ -348,7 +342,7 @@ def calibration_to_yaml(cal: Calibration, node: str = "margcal") -> str:
 
 def calibration_from_yaml(text: str, sensor: str | None = None) -> Calibration:
     """Read one calibration from YAML text (the only one, or the one named ``sensor``)."""
-    cals = _parse(text, "<text>")
+    cals = _parse(text, "<text>")[0]
     if sensor is None:
         if len(cals) != 1:
             msg = f"YAML holds calibrations for {sorted(cals)}; name the sensor to read"

@@ -561,11 +561,11 @@ def partial_fit_steps(series: Array, prior: Calibration | None, cfg: PipelineCon
         if prior is not None and (prior.covariance is None or tuple(prior.parameter_names) != SYM_NAMES):
             prior = None
             kind = "broad"
-        # a near-level ring without a usable gyro: the level term (model.fitting_level), from every default start
-        # (a previous solution may sit in the flat ring's valley of a large norm and a nearly vertical field)
         if sensor == "mag" and relative_spread(np.asarray(series)[:, :3]) < STILL_SPREAD:  # noise about one reading
             return PartialResult(None, (), SYM_NAMES, kind, math.nan, math.inf, None,
                                  "partial fit: none (the readings have not turned)")
+        # a near-level ring without a usable gyro: the level term (model.fitting_level), from every default start
+        # (a previous solution may sit in the flat ring's valley of a large norm and a nearly vertical field)
         thick = ring_tilt_deg(series) if sensor == "mag" else math.inf
         level = level_ok and thick <= cfg.near_level_tilt_deg
         norm = cfg.reference_norm or (prior.norm if prior is not None else sphere_radius(series))

@@ -18,7 +18,7 @@ import pytest
 
 from ros_margcal.cli import main
 from ros_margcal.model.calibration import Calibration
-from ros_margcal.model.calibration_file import calibration_node, load_calibrations, save_calibrations
+from ros_margcal.model.calibration_file import load_calibrations, read_calibration_file, save_calibrations
 from ros_margcal.recordings import write_bag, write_csv
 from ros_margcal.recordings.recording import Recording
 from ros_margcal.sim.simulation import directions, magnetometer_stream, random_sensor, simulate, tumbling
@@ -143,8 +143,8 @@ def test_calibrate_keeps_the_other_sensors_calibration_of_its_output(mag_csv: Pa
     cals = load_calibrations(out)
     assert set(cals) == {"accel", "mag"} and cals["accel"].allclose(acc) and not cals["mag"].allclose(old_mag)
     assert any("accel" in line and "kept" in line for line in err), err
-    assert calibration_node(out) == "robot_imu_calib" and out.read_text().startswith("robot_imu_calib:")
-    assert calibration_node(save_calibrations(tmp_path / "new.yaml", {"accel": acc})) == "margcal"
+    assert read_calibration_file(out)[1] == "robot_imu_calib" and out.read_text().startswith("robot_imu_calib:")
+    assert read_calibration_file(save_calibrations(tmp_path / "new.yaml", {"accel": acc}))[1] == "margcal"
 
 
 def test_calibrate_refuses_to_replace_a_file_that_is_no_calibration_unless_forced(
